@@ -1,0 +1,56 @@
+"""The ``headsim`` command line: a thin layer over the Python API.
+
+Each command group lives in its own module (``mesh_cmd``, ...) and imports heavy modules lazily so
+``headsim --help`` stays fast. :func:`main` turns every :class:`headsim.HeadsimError` into a one-line
+message on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from headsim import __version__
+from headsim.errors import HeadsimError
+
+app = typer.Typer(
+    name="headsim",
+    help="Physics simulation of the soft parts of the human head: mask fit, fat grafting, hair.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        typer.echo(f"headsim {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version_callback, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    """headsim: physics simulation of the soft parts of the human head."""
+
+
+def _register() -> None:
+    from headsim.cli import mesh_cmd
+
+    app.add_typer(mesh_cmd.app, name="mesh")
+
+
+_register()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: run the CLI, turning headsim errors into a message and exit code 2."""
+    try:
+        app(args=argv, prog_name="headsim")
+    except HeadsimError as e:
+        typer.secho(f"error: {e}", fg=typer.colors.RED, err=True)
+        sys.exit(2)

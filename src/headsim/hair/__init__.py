@@ -1,0 +1,1 @@
+"""Hair fibres: properties, rods, collisions, electrostatics, reconstruction, rendering (app layer)."""

@@ -1,0 +1,1 @@
+"""Reports: interactive offline HTML pages and PNG pictures of results."""

@@ -1,0 +1,1 @@
+"""Shared numerical solvers: mass-spring-damper, FEM, PBD/XPBD, rods, contact."""
