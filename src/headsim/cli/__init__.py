@@ -43,6 +43,12 @@ def _register() -> None:
 
     app.add_typer(mesh_cmd.app, name="mesh")
 
+    from headsim.cli import graft_cmd
+
+    app.command("graft")(graft_cmd.graft)
+    app.command("compare")(graft_cmd.compare)
+    app.command("graft-scene")(graft_cmd.graft_scene)
+
 
 _register()
 

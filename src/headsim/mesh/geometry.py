@@ -69,7 +69,9 @@ def unique_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     tri = np.asarray(triangles, dtype=np.int64)
     e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     e.sort(axis=1)
-    edges, counts = np.unique(e, axis=0, return_counts=True)
+    base = int(tri.max()) + 1 if tri.size else 1
+    codes, counts = np.unique(e[:, 0] * base + e[:, 1], return_counts=True)  # 1-D keys: much faster
+    edges = np.stack([codes // base, codes % base], axis=1)
     return edges, counts
 
 
@@ -78,7 +80,8 @@ def boundary_edges_directed(triangles: np.ndarray) -> np.ndarray:
     tri = np.asarray(triangles, dtype=np.int64)
     half = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     key = np.sort(half, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    base = int(tri.max()) + 1 if tri.size else 1
+    _, inverse, counts = np.unique(key[:, 0] * base + key[:, 1], return_inverse=True, return_counts=True)
     return half[counts[inverse.ravel()] == 1]
 
 

@@ -1,0 +1,398 @@
+"""Bounding-volume hierarchies over fibre segments and their self-collision query.
+
+Implements Sobottka 2008, Ch. 7 §7.3 (digest ``hair_ch7_collision_detection.md``):
+
+* **Hierarchies.** ``"spatial"`` = H_R, top-down split at the mid-plane of the longest axis /
+  thickest slab (§7.3.3, §7.3.7.2.2) with the thesis' fallbacks plus an index split; ``"topological"``
+  = a balanced tree along the seed's *total fibre* (all fibres threaded boustrophedon into one chain,
+  §7.3.3, Fig. 7.4). Topological BVs are *layered* (H_TI: merge of the two children, built bottom-up)
+  or *wrapped* (H_TD: MEV of all leaf capsules below the node). For AABB / k-DOP both are the same
+  (Lemma 7.3.1), which the tests check node by node.
+* **The ten variants** of Table 7.1: AS, AL, DS, DL, OS, OW, OL, SS, SW, SL (:data:`VARIANTS`).
+* **Maintenance** (Alg. 5): :meth:`FibreBVH.update` refits leaves and merges bottom-up (H_TI, and the
+  lazy refit of H_R); wrapped trees recompute every node's MEV over its leaf range (the result the
+  cascade verification of Alg. 4 converges to, without the basis bookkeeping); :meth:`FibreBVH.rebuild`
+  re-partitions H_R; :class:`RebuildPolicy` chooses between them per step.
+* **Query** (Alg. 3): simultaneous depth-first descent from (root, root) with self-pair handling
+  (each unordered pair once), adjacency exclusion (same or neighbouring segment of one fibre; the
+  virtual links of the total fibre are tested), exact capsule–capsule leaf test returning closest
+  points, normal and depth; "all" or "first" contact; counters and timings. The top pairs are
+  expanded breadth-first into independent tasks that run on several threads (Numba ``nogil``).
+
+Memory is linear in the number of segments: 2S − 1 nodes with 4 int64 and one BV row each.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from headsim.collide import _kernels_fibre as K
+from headsim.collide import _kernels_fibre_traverse as T
+from headsim.collide.bounding_volumes import (
+    AABB,
+    BV_SLAB,
+    KDOP,
+    OBB,
+    BoundingVolume,
+    Sphere,
+)
+from headsim.collide.fibres import FibreContacts, FibreSet, capsule_contacts
+from headsim.errors import ParameterError
+
+__all__ = ["VARIANTS", "FibreBVH", "QueryStats", "RebuildPolicy", "fibre_self_contacts"]
+
+#: Table 7.1: name → (bounding volume, hierarchy, wrapped?)
+VARIANTS: dict[str, tuple[str, str, bool]] = {
+    "AS": ("aabb", "spatial", False),
+    "AL": ("aabb", "topological", False),
+    "DS": ("kdop", "spatial", False),
+    "DL": ("kdop", "topological", False),
+    "OS": ("obb", "spatial", True),
+    "OW": ("obb", "topological", True),
+    "OL": ("obb", "topological", False),
+    "SS": ("sphere", "spatial", True),
+    "SW": ("sphere", "topological", True),
+    "SL": ("sphere", "topological", False),
+}
+
+
+@dataclass
+class QueryStats:
+    """Counters and timings of the last query / maintenance (Sobottka §7.4 instrumentation).
+
+    bv_tests: BV overlap tests; bv_overlaps: overlapping BV pairs; leaf_bv_tests: BV tests between two
+    leaves (lowest level); primitive_tests: capsule–capsule tests; contacts: contacts found;
+    seconds: wall-clock time of the query, s.
+    """
+
+    bv_tests: int = 0
+    bv_overlaps: int = 0
+    leaf_bv_tests: int = 0
+    primitive_tests: int = 0
+    contacts: int = 0
+    seconds: float = 0.0
+
+    @classmethod
+    def from_counters(cls, c, seconds):
+        return cls(int(c[0]), int(c[1]), int(c[2]), int(c[3]), int(c[4]), seconds)
+
+
+@dataclass(frozen=True)
+class RebuildPolicy:
+    """When :meth:`FibreBVH.maintain` re-partitions a spatial tree instead of refitting it.
+
+    mode: ``"refit"`` (never rebuild), ``"rebuild"`` (every step), ``"every"`` (every ``every`` steps),
+    ``"quality"`` (when the summed inner BV size grew by more than ``quality_factor`` since the last
+    rebuild). Topological trees are always updated bottom-up (their structure never changes).
+    """
+
+    mode: str = "refit"
+    every: int = 10
+    quality_factor: float = 1.5
+
+    def __post_init__(self):
+        if self.mode not in ("refit", "rebuild", "every", "quality"):
+            raise ParameterError(f"rebuild policy mode must be refit/rebuild/every/quality, got {self.mode!r}")
+        if self.every < 1 or not self.quality_factor > 1.0:
+            raise ParameterError("rebuild policy needs every ≥ 1 and quality_factor > 1")
+
+
+def _make_bv(bv: str | BoundingVolume, k: int | None) -> BoundingVolume:
+    if isinstance(bv, BoundingVolume):
+        return bv
+    key = bv.lower()
+    if key == "aabb":
+        return AABB()
+    if key in ("kdop", "dop"):
+        return KDOP(26 if k is None else k)
+    if key == "obb":
+        return OBB()
+    if key == "sphere":
+        return Sphere()
+    raise ParameterError(f"unknown bounding volume {bv!r}; choose aabb, kdop, obb or sphere")
+
+
+class FibreBVH:
+    """A bounding-volume hierarchy over all segments of a :class:`FibreSet`.
+
+    Parameters
+    ----------
+    fibres : FibreSet
+    bv : ``"aabb"``, ``"kdop"``, ``"obb"``, ``"sphere"`` or a :class:`BoundingVolume` instance.
+    hierarchy : ``"spatial"`` (H_R) or ``"topological"`` (total fibre, H_TI / H_TD).
+    wrapped : topological trees: wrapped (H_TD) instead of layered (H_TI) BVs; spatial trees with
+        spheres/OBBs: node BV = MEV of its capsules (the thesis' H_R) rather than the merge of the
+        children. AABB / k-DOP BVs are the same either way (Lemma 7.3.1).
+    k : k of the k-DOP (classic set for 6/14/18/26, else Grassmannian directions).
+    fibre_order : order of the fibres along the total fibre (default: as stored).
+    split_rule : descent rule of Alg. 3: ``"leaves"`` (node with more leaves, ties by size) or
+        ``"volume"`` (larger BV).
+    threads : worker threads of the query (default: Numba's thread count).
+
+    Attributes
+    ----------
+    left, right, lo, hi : (2S − 1,) int64 tree arrays (children; leaf-slot range of every node).
+    perm : (S,) int64 global segment id of every leaf slot.
+    bvs : (2S − 1, width) float64 BV rows (m).
+    timings : dict of the last build / update / rebuild / query times, s.
+    stats : :class:`QueryStats` of the last query.
+    """
+
+    def __init__(self, fibres: FibreSet, bv="aabb", hierarchy: str = "spatial", *, wrapped: bool = False,
+                 k: int | None = None, fibre_order=None, split_rule: str = "leaves",
+                 threads: int | None = None):
+        if not isinstance(fibres, FibreSet):
+            raise ParameterError("FibreBVH needs a FibreSet (see headsim.collide.fibres_from_arrays)")
+        if hierarchy not in ("spatial", "topological"):
+            raise ParameterError(f"hierarchy must be 'spatial' or 'topological', got {hierarchy!r}")
+        if split_rule not in ("leaves", "volume"):
+            raise ParameterError(f"split_rule must be 'leaves' or 'volume', got {split_rule!r}")
+        self.fibres = fibres
+        self.bv = _make_bv(bv, k)
+        self.hierarchy = hierarchy
+        self.wrapped = bool(wrapped)
+        self.fibre_order = fibre_order
+        self.split_rule = split_rule
+        self.threads = int(threads) if threads else numba.get_num_threads()
+        self.nodes = fibres.nodes
+        self.timings: dict[str, float] = {}
+        self.stats = QueryStats()
+        self._steps_since_rebuild = 0
+        self._quality_ref = None
+        t0 = time.perf_counter()
+        self._build()
+        self.timings["build"] = time.perf_counter() - t0
+
+    @classmethod
+    def from_variant(cls, fibres: FibreSet, variant: str, *, k: int | None = None, **kw) -> "FibreBVH":
+        """Build one of the ten variants of Table 7.1 (AS, AL, DS, DL, OS, OW, OL, SS, SW, SL)."""
+        key = variant.upper()
+        if key not in VARIANTS:
+            raise ParameterError(f"unknown variant {variant!r}; choose one of {', '.join(VARIANTS)}")
+        bv, hierarchy, wrapped = VARIANTS[key]
+        return cls(fibres, bv, hierarchy, wrapped=wrapped, k=k, **kw)
+
+    # -- properties -----------------------------------------------------------------------------
+    @property
+    def kind(self) -> int:
+        return self.bv.kind
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.left)
+
+    @property
+    def _dirs(self) -> np.ndarray:
+        if not hasattr(self, "_dirs_cache"):
+            d = self.bv.directions
+            self._dirs_cache = np.ascontiguousarray(d if len(d) else np.eye(3))
+        return self._dirs_cache
+
+    @property
+    def _m(self) -> int:
+        return len(self.bv.directions) if self.kind == BV_SLAB else 0
+
+    def __repr__(self) -> str:
+        return (f"FibreBVH({self.bv!r}, {self.hierarchy}{', wrapped' if self.wrapped else ''}, "
+                f"{self.fibres.n_segments} segments)")
+
+    # -- build and maintenance --------------------------------------------------------------------
+    def _alloc(self):
+        s = self.fibres.n_segments
+        n = 2 * s - 1
+        self.left = np.empty(n, np.int64)
+        self.right = np.empty(n, np.int64)
+        self.lo = np.empty(n, np.int64)
+        self.hi = np.empty(n, np.int64)
+        self.bvs = np.empty((n, self.bv.width), np.float64)
+
+    def _build(self):
+        f = self.fibres
+        self._alloc()
+        if self.hierarchy == "topological":
+            self.perm = np.ascontiguousarray(f.total_fibre_order(self.fibre_order))
+            K.build_topological(f.n_segments, self.left, self.right, self.lo, self.hi)
+            self._index_leaves()
+            self._fit_all()
+        else:
+            self._build_spatial()
+        self._quality_ref = self._quality()
+
+    def _build_spatial(self):
+        f = self.fibres
+        split_dirs = self._dirs  # slab types: own directions; sphere / OBB: the coordinate axes
+        leaf = np.empty((f.n_segments, 2 * len(split_dirs)))
+        K.segment_slabs(self.nodes, f.segment_start, f.radius, split_dirs, leaf)
+        self.perm = np.arange(f.n_segments, dtype=np.int64)
+        if self.kind == BV_SLAB:
+            K.build_spatial(leaf, self.perm, self.left, self.right, self.lo, self.hi, self.bvs)
+            self._index_leaves()
+        else:
+            tmp = np.empty((len(self.left), leaf.shape[1]))
+            K.build_spatial(leaf, self.perm, self.left, self.right, self.lo, self.hi, tmp)
+            del tmp
+            self._index_leaves()
+            self._fit_all()
+
+    def _index_leaves(self):
+        leaves = np.nonzero(self.left < 0)[0]
+        self.leaf_node = np.empty(self.fibres.n_segments, np.int64)
+        self.leaf_node[self.lo[leaves]] = leaves
+
+    def _fit_all(self):
+        f = self.fibres
+        K.refit_leaves(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
+                       self.leaf_node, self.bvs)
+        if self.wrapped:
+            K.refit_inner_wrapped(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
+                                  self.left, self.lo, self.hi, self.bvs)
+        else:
+            K.refit_inner_layered(self.kind, self.left, self.right, self.bvs)
+
+    def _set_nodes(self, nodes):
+        if nodes is None:
+            return
+        x = np.ascontiguousarray(nodes, dtype=np.float64)
+        if x.shape != self.fibres.nodes.shape:
+            raise ParameterError(f"nodes must have shape {self.fibres.nodes.shape}, got {x.shape}")
+        if not np.isfinite(x).all():
+            raise ParameterError("fibre nodes contain NaN or inf")
+        self.nodes = x
+
+    def update(self, nodes=None) -> float:
+        """Refit to new node positions (N, 3) m without changing the tree (Alg. 5). Returns seconds.
+
+        Layered trees and spatial trees: leaf refit + bottom-up MERGE (linear). Wrapped trees: every
+        node's MEV over its leaf range (O(S log S)).
+        """
+        self._set_nodes(nodes)
+        t0 = time.perf_counter()
+        f = self.fibres
+        K.refit_leaves(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
+                       self.leaf_node, self.bvs)
+        if self.wrapped and self.hierarchy == "topological":
+            K.refit_inner_wrapped(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
+                                  self.left, self.lo, self.hi, self.bvs)
+        else:
+            K.refit_inner_layered(self.kind, self.left, self.right, self.bvs)
+        dt = time.perf_counter() - t0
+        self.timings["update"] = dt
+        self._steps_since_rebuild += 1
+        return dt
+
+    def rebuild(self, nodes=None) -> float:
+        """Build the tree again at new node positions (H_R re-partition). Returns seconds."""
+        self._set_nodes(nodes)
+        t0 = time.perf_counter()
+        self._build()
+        dt = time.perf_counter() - t0
+        self.timings["rebuild"] = dt
+        self._steps_since_rebuild = 0
+        return dt
+
+    def _quality(self) -> float:
+        inner = self.left >= 0
+        if self.kind == BV_SLAB:
+            m = self._m
+            return float((self.bvs[inner, m:] - self.bvs[inner, :m]).sum())
+        if self.kind == 1:
+            return float(self.bvs[inner, 3].sum())
+        return float(self.bvs[inner, 12:15].sum())
+
+    def maintain(self, nodes, policy: RebuildPolicy = RebuildPolicy()) -> str:
+        """Bring the tree to new node positions by refit or rebuild according to ``policy``.
+
+        Returns ``"refit"`` or ``"rebuild"`` (what was done). Topological trees are always refit.
+        """
+        if self.hierarchy == "topological" or policy.mode == "refit":
+            self.update(nodes)
+            return "refit"
+        if policy.mode == "rebuild" or (policy.mode == "every" and self._steps_since_rebuild + 1 >= policy.every):
+            self.rebuild(nodes)
+            return "rebuild"
+        self.update(nodes)
+        if policy.mode == "quality" and self._quality() > policy.quality_factor * self._quality_ref:
+            self.rebuild()
+            return "rebuild"
+        return "refit"
+
+    # -- queries -----------------------------------------------------------------------------------
+    def _traverse(self, tasks, first_only, counters):
+        f = self.fibres
+        return T.traverse_pairs(tasks, self.left, self.right, self.lo, self.hi, self.perm, self.bvs, self.kind,
+                                self._m, self.nodes, f.segment_start, f.radius, f.segment_fibre,
+                                0 if self.split_rule == "leaves" else 1, first_only, counters)
+
+    def self_contact_pairs(self, mode: str = "all") -> tuple[np.ndarray, np.ndarray]:
+        """Colliding segment pairs of the self-query (Alg. 3).
+
+        Returns pairs (n, 2) int64 with pairs[:, 0] < pairs[:, 1], sorted, and params (n, 2) float64
+        (closest-point parameters s on the first, t on the second segment). ``mode="first"``
+        stops at the first contact (at most one pair).
+        """
+        if mode not in ("all", "first"):
+            raise ParameterError(f"mode must be 'all' or 'first', got {mode!r}")
+        t0 = time.perf_counter()
+        counters = np.zeros(T.N_COUNTERS, np.int64)
+        root = np.zeros((1, 2), np.int64)
+        if mode == "first" or self.threads <= 1 or self.n_nodes < 64:
+            pairs, params = self._traverse(root, mode == "first", counters)
+        else:
+            m = self._m
+            tasks = T.expand_tasks(0, 0, self.left, self.right, self.lo, self.hi, self.bvs, self.kind, m,
+                                   256 * self.threads, 0 if self.split_rule == "leaves" else 1, counters)
+            n_chunks = min(len(tasks), 32 * self.threads)
+            chunks = [np.ascontiguousarray(tasks[i::n_chunks]) for i in range(n_chunks)]
+            cs = [np.zeros(T.N_COUNTERS, np.int64) for _ in chunks]
+            with ThreadPoolExecutor(max_workers=self.threads) as ex:
+                results = list(ex.map(lambda ic: self._traverse(ic[1], False, cs[ic[0]]), enumerate(chunks)))
+            for c in cs:
+                counters += c
+            pairs = np.concatenate([r[0] for r in results]) if results else np.zeros((0, 2), np.int64)
+            params = np.concatenate([r[1] for r in results]) if results else np.zeros((0, 2))
+        if mode == "all" and len(pairs):
+            order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+            pairs, params = pairs[order], params[order]
+        dt = time.perf_counter() - t0
+        self.stats = QueryStats.from_counters(counters, dt)
+        self.timings["query"] = dt
+        return pairs, params
+
+    def self_contacts(self, mode: str = "all") -> FibreContacts:
+        """All (or the first) fibre–fibre contacts at the current node positions, as records."""
+        pairs, params = self.self_contact_pairs(mode)
+        return capsule_contacts(self.fibres, pairs, params, nodes=self.nodes)
+
+    # -- diagnostics ---------------------------------------------------------------------------------
+    def depths(self) -> np.ndarray:
+        """(n_nodes,) int64 depth of every node (root 0)."""
+        d = np.zeros(self.n_nodes, np.int64)
+        inner = np.nonzero(self.left >= 0)[0]  # parents have smaller ids than children
+        for u in inner:
+            d[self.left[u]] = d[u] + 1
+            d[self.right[u]] = d[u] + 1
+        return d
+
+    def level_volumes(self, max_nodes_per_level: int = 2000, seed: int = 0) -> np.ndarray:
+        """(levels,) average BV volume per tree level, m³ (Fig. 7.14 right); levels are subsampled."""
+        d = self.depths()
+        rng = np.random.default_rng(seed)
+        out = []
+        for lev in range(d.max() + 1):
+            ids = np.nonzero(d == lev)[0]
+            if len(ids) > max_nodes_per_level:
+                ids = rng.choice(ids, max_nodes_per_level, replace=False)
+            out.append(float(self.bv.volume(self.bvs[ids]).mean()))
+        return np.array(out)
+
+
+def fibre_self_contacts(fibres: FibreSet, variant: str = "AS", *, k: int | None = None,
+                        mode: str = "all") -> FibreContacts:
+    """One-shot: build the hierarchy ``variant`` and return all fibre–fibre contacts."""
+    return FibreBVH.from_variant(fibres, variant, k=k).self_contacts(mode)
+

@@ -1,0 +1,235 @@
+"""Volume injection into a marked face region by PBD (Monkin 2016, seed 001, §4.3, §5.2–5.3).
+
+:func:`prepare_graft` builds what the seed's module keeps between runs (closed region model, fixed
+vertices, initial area and volume); :func:`inject_volume` raises the volume constraint's target by the
+injected volume and relaxes the closed model with PBD to the stop rule; the result is a copy of the whole
+face with the region's vertices replaced.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from headsim.errors import ConvergenceError, ParameterError
+from headsim.graft.region import ClosedRegion, FaceRegion, close_region
+from headsim.mesh.surface import SurfaceMesh
+from headsim.solvers.pbd import STANDARD_GRAVITY, PBDModel, PBDOptions, PBDSolver, PBDState, SolveInfo
+
+__all__ = ["GraftOptions", "GraftSetup", "GraftResult", "prepare_graft", "inject_volume", "graft_pbd_options"]
+
+
+@dataclass(frozen=True)
+class GraftOptions:
+    """Parameters of one injection (seed step 3) and of its PBD solve.
+
+    areal_density : kg/m², mass of the region per area (region mass = areal_density × area, spread over
+        the particles by area, Monkin §4.2); it only matters with gravity or hydrostatic pressure
+    gravity : apply gravity (−y, the bundled faces' "down"; the seed notes it shifts the result slightly)
+    fluid_density : kg/m³, hydrostatic pressure of the injected fat (Monkin §4.3: 600–1000); 0 = off
+    closure : "centroid" or "mirror" (Monkin §5.3)
+    method : distance-constraint solver, "gauss_seidel" (coloured) or "jacobi"
+    xpbd : XPBD compliance (iteration-count independent stiffness) instead of PBD stiffness 1
+    edge_compliance : m/N, XPBD compliance of the edge springs; None = ``spring_softness`` × dt² / mean
+        particle mass. The equilibrium shape does not depend on it (linear springs at their initial
+        lengths plus a volume constraint: scaling all stiffnesses scales only the pressure); it sets how
+        fast and how exactly the solve gets there: stiff springs (softness ≪ 1) make XPBD behave like PBD,
+        whose fixed point then depends on the iteration scheme
+    spring_softness : dimensionless compliance / dt² × mass, used when edge_compliance is None
+    dt : s; iterations : per step; damping : in [0, 1] (Monkin §4.4)
+    stop_tolerance : m per particle (Monkin §4.4 stop rule); max_steps : step budget
+    stabilisation_iterations : projections without velocity update first (Monkin §4.4)
+    require_convergence : raise ConvergenceError when max_steps is reached before the stop rule holds
+    """
+
+    areal_density: float = 10.0
+    gravity: bool = False
+    fluid_density: float = 0.0
+    closure: str = "centroid"
+    method: str = "gauss_seidel"
+    xpbd: bool = True
+    edge_compliance: float | None = None
+    spring_softness: float = 1.5
+    dt: float = 1e-2
+    iterations: int = 4
+    damping: float = 0.1
+    stop_tolerance: float = 1e-8
+    max_steps: int = 20_000
+    stabilisation_iterations: int = 0
+    require_convergence: bool = True
+    parallel: bool = False
+
+    def __post_init__(self):
+        if not (self.areal_density > 0 and math.isfinite(self.areal_density)):
+            raise ParameterError(f"areal_density must be > 0 kg/m², got {self.areal_density}")
+        if not self.spring_softness > 0:
+            raise ParameterError(f"spring_softness must be > 0, got {self.spring_softness}")
+        if self.edge_compliance is not None and not self.edge_compliance > 0:
+            raise ParameterError(f"edge_compliance must be > 0 m/N or None, got {self.edge_compliance}")
+        if (self.gravity or self.fluid_density > 0) and self.edge_compliance is None:
+            raise ParameterError(
+                "gravity and hydrostatic pressure need a physical spring compliance: give edge_compliance (m/N); "
+                "the default softness only shapes the volume-driven equilibrium")
+        if self.closure not in ("centroid", "mirror"):
+            raise ParameterError(f"closure must be 'centroid' or 'mirror', got {self.closure!r}")
+        if not 0 <= self.fluid_density < 1e5:
+            raise ParameterError(f"fluid_density must be in [0, 1e5) kg/m³, got {self.fluid_density}")
+        graft_pbd_options(self)  # validates the rest
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def graft_pbd_options(options: GraftOptions) -> PBDOptions:
+    """The :class:`PBDOptions` of a graft solve."""
+    return PBDOptions(
+        dt=options.dt, iterations=options.iterations,
+        gravity=(0.0, -STANDARD_GRAVITY if options.gravity else 0.0, 0.0),
+        damping=options.damping, method=options.method, xpbd=options.xpbd,
+        edge_compliance=options.edge_compliance or 0.0, volume_compliance=0.0,
+        stabilisation_iterations=options.stabilisation_iterations, stop_tolerance=options.stop_tolerance,
+        min_steps=3, max_steps=options.max_steps, parallel=options.parallel,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class GraftSetup:
+    """Prepared data of the seed's module (§5.2): the region, its closed model, initial area and volume.
+
+    A setup is reused for any number of injections with different parameters.
+    """
+
+    region: FaceRegion
+    closed: ClosedRegion
+    area_before: float  # m²
+    volume_before: float  # m³, closed model
+
+    @property
+    def face(self) -> SurfaceMesh:
+        return self.region.mesh
+
+
+def prepare_graft(region: FaceRegion, closure: str = "centroid") -> GraftSetup:
+    """Close ``region`` (Monkin §5.3) and record its initial area and volume (seed step 2 → 3)."""
+    closed = close_region(region, closure)
+    return GraftSetup(region, closed, region.area, closed.volume)
+
+
+@dataclass(frozen=True, eq=False)
+class GraftResult:
+    """Result of one injection (seed step 4).
+
+    face_after : the whole face with the region replaced
+    volume_injected : m³, requested
+    volume_before, volume_after : m³, closed model before and after
+    area_before, area_after : m², region surface
+    info : how the PBD solve ended
+    options : the parameters used
+    """
+
+    setup: GraftSetup
+    face_after: SurfaceMesh
+    volume_injected: float
+    volume_before: float
+    volume_after: float
+    area_before: float
+    area_after: float
+    info: SolveInfo
+    options: GraftOptions
+    closed_after: np.ndarray = field(repr=False, default=None)  # (k, 3) m, closed model positions
+
+    @property
+    def displacement(self) -> np.ndarray:
+        """(n,) float64, m: signed displacement of every face vertex along its original normal."""
+        before = self.setup.face
+        d = self.face_after.vertices - before.vertices
+        return np.einsum("ij,ij->i", d, before.vertex_normals)
+
+    def summary(self) -> dict:
+        """JSON-ready numbers (SI units and cm³/cm² copies for people)."""
+        r = self.setup.region
+        return {
+            "region": r.markers.name if r.markers is not None else "region",
+            "markers": r.markers.to_json() if r.markers is not None else None,
+            "marker_vertices": r.marker_vertices.tolist(),
+            "region_vertices": int(len(r.vertex_ids)),
+            "region_triangles": int(len(r.triangle_ids)),
+            "closure": self.setup.closed.method,
+            "volume_injected_m3": self.volume_injected,
+            "volume_before_m3": self.volume_before,
+            "volume_after_m3": self.volume_after,
+            "volume_change_cm3": (self.volume_after - self.volume_before) * 1e6,
+            "area_before_m2": self.area_before,
+            "area_after_m2": self.area_after,
+            "max_displacement_mm": float(np.max(np.abs(self.displacement)) * 1e3),
+            "steps": self.info.steps,
+            "converged": self.info.converged,
+            "params": self.options.to_json(),
+        }
+
+
+def _pbd_model(setup: GraftSetup, options: GraftOptions, target: float) -> PBDModel:
+    c = setup.closed
+    surf = c.triangles[c.surface_triangles]
+    mass_total = options.areal_density * setup.area_before
+    base = PBDModel.from_surface(c.vertices, surf, total_mass=mass_total, fixed=c.fixed)
+    mass = base.mass.copy()
+    mass[mass == 0] = 1.0  # closure vertices outside the region surface: fixed anyway
+    return PBDModel(mass=mass, fixed=c.fixed, edges=base.edges, rest_length=base.rest_length,
+                    volume_triangles=c.triangles, volume_body=np.zeros(len(c.triangles), np.int64),
+                    volume_target=[target], fluid_density=options.fluid_density)
+
+
+def inject_volume(setup: GraftSetup, volume: float, options: GraftOptions = GraftOptions(), *,
+                  callback: Callable[[PBDState, float], None] | None = None,
+                  cancel: Callable[[], bool] | None = None) -> GraftResult | None:
+    """Raise the closed model's target volume by ``volume`` and relax it with PBD (Monkin §4.3, §5.3).
+
+    Parameters
+    ----------
+    volume : m³ to inject (> 0; 1 cm³ = 1e-6 m³)
+    callback : called after every PBD step with (state, change of Σ|x|) for progress display
+    cancel : polled every step; when it returns True the solve stops and None is returned
+
+    Returns
+    -------
+    GraftResult, or None when cancelled. ``setup`` and its face are never modified.
+
+    Notes
+    -----
+    The region's loop and the closure are fixed, so the closed model's volume change equals the volume
+    between the face surfaces before and after inside the region.
+    """
+    if not (volume > 0 and math.isfinite(volume)):
+        raise ParameterError(f"volume to inject must be > 0 m³, got {volume}")
+    limit = 50.0 * setup.area_before ** 1.5
+    if volume > limit:
+        raise ParameterError(
+            f"{volume * 1e6:.3g} cm³ is implausibly large for a region of {setup.area_before * 1e4:.3g} cm² "
+            f"(limit {limit * 1e6:.3g} cm³); check the volume's unit (cm³) and the mesh's unit")
+    model = _pbd_model(setup, options, setup.volume_before + volume)
+    pbd_options = graft_pbd_options(options)
+    if options.edge_compliance is None:
+        mean_mass = float(model.mass[~model.fixed].mean())
+        pbd_options = replace(pbd_options, edge_compliance=options.spring_softness * options.dt**2 / mean_mass)
+    solver = PBDSolver(model, pbd_options)
+    state, info = solver.solve(PBDState.at_rest(setup.closed.vertices), callback=callback, cancel=cancel)
+    if info.cancelled:
+        return None
+    if not info.converged and options.require_convergence:
+        raise ConvergenceError(
+            f"the graft solve did not meet the stop rule in {options.max_steps} steps (last change of Σ|x| "
+            f"{info.last_change:.3g} m); raise max_steps or damping")
+    closed = setup.closed
+    moved = closed.face_ids >= 0
+    after = setup.face.vertices.copy()
+    after[closed.face_ids[moved]] = state.positions[moved]
+    face_after = setup.face.with_vertices(after)
+    return GraftResult(
+        setup=setup, face_after=face_after, volume_injected=volume, volume_before=setup.volume_before,
+        volume_after=closed.volume_on(state.positions), area_before=setup.area_before,
+        area_after=setup.region.area_on(after), info=info, options=options, closed_after=state.positions,
+    )

@@ -1,0 +1,307 @@
+"""Rod scenes of Sobottka (2008) §3.4.9, with keratin parameters from the property database.
+
+Each builder returns a :class:`Scene` (model, initial state, solver options, time step, duration and
+a load / boundary schedule); :func:`run_scene` integrates it and records a :class:`Trajectory`.
+The seed gives no magnitudes for most examples; the values chosen here are stated in each docstring.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from headsim.errors import ParameterError
+from headsim.hair import properties as props
+from headsim.hair.fibres import (
+    Strand,
+    fibre_model,
+    helix_axis,
+    helix_curvature,
+    interpolate_strand,
+    make_strand,
+    sinusoidal_curvature,
+)
+from headsim.solvers.rods import (
+    GeneralizedAlpha,
+    ImplicitRodSolver,
+    RodBoundary,
+    RodLoads,
+    RodModel,
+    RodSolverOptions,
+    RodState,
+    initial_state,
+    kinetic_energy,
+)
+
+__all__ = ["Scene", "Trajectory", "SCENES", "build_scene", "run_scene"]
+
+GRAVITY = np.array([0.0, 0.0, -9.81])
+Schedule = Callable[[float], tuple[RodLoads, RodBoundary]]
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A rod simulation set-up. ``schedule(t)`` gives the loads and boundary conditions held over
+    the step that ends at time t (s)."""
+
+    name: str
+    model: RodModel
+    state: RodState
+    options: RodSolverOptions
+    dt: float
+    duration: float
+    schedule: Schedule
+    description: str
+    strand: Strand | None = None
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.duration / self.dt))
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """Recorded output. times (T,) s; positions (T, F, N+1, 3) m; frames_tip (T, F, 3, 3);
+    kinetic (T, F) J; iterations (n_steps,) mean Newton iterations of every step;
+    curvature (T, F, N+1, 3) 1/m; final_state."""
+
+    times: np.ndarray
+    positions: np.ndarray
+    curvature: np.ndarray
+    kinetic: np.ndarray
+    iterations: np.ndarray
+    final_state: RodState
+    interpolated: np.ndarray | None = field(default=None)  # (T, M, N+1, 3) strand fibres of guide 0
+
+
+def _hair(length, n_segments, diameter=70e-6, **kw) -> RodModel:
+    sec = props.elliptic_cross_section(diameter)
+    return fibre_model(length, n_segments, section=sec, **kw)
+
+
+def _static(loads=None, boundary=None) -> Schedule:
+    lo = loads or RodLoads()
+    bo = boundary or RodBoundary()
+    return lambda t: (lo, bo)
+
+
+def cantilever(n_segments: int = 50, dt: float = 1e-3, duration: float = 0.5) -> Scene:
+    """A 5 cm hair (70 um) clamped horizontally and released under gravity; rho_inf = 0.5 in time."""
+    m = _hair(0.05, n_segments, root_direction=(1, 0, 0))
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
+    return Scene("cantilever", m, initial_state(m), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+                 "5 cm keratin fibre, clamped horizontally, released under gravity")
+
+
+def precurved(n_segments: int = 50, dt: float = 2e-3, duration: float = 0.5, rho_inf: float = 0.5) -> Scene:
+    """Seed fig. 3.15: a sinusoidally pre-curved 10 cm fibre clamped horizontally, released under
+    gravity (curvature amplitude 60 /m, wavelength 2.5 cm, bending in the vertical plane)."""
+    L = 0.1
+    k0 = sinusoidal_curvature(n_segments, L, 60.0, 0.025, component=0)
+    m = _hair(L, n_segments, natural_curvature=k0, root_direction=(1, 0, 0))
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(rho_inf, 1.0))
+    return Scene("precurved", m, initial_state(m), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+                 "sinusoidally pre-curved fibre released under gravity (seed fig. 3.15)")
+
+
+def helix(n_segments: int = 100, dt: float = 2e-3, duration: float = 1.0, load: str = "torque") -> Scene:
+    """Seed fig. 3.16: a 30 cm helical fibre (coil radius 1 cm, pitch 1 cm), root clamped with the
+    helix axis vertical, no gravity; a tip torque (or force, ``load='force'``) parallel to the axis
+    ramps up over the first 40 % of the run and is then held. High numerical damping (seed: alpha = 0.4,
+    beta = 0, gamma = 1 -> we use rho_inf = 0 in time). Torque 0.5 EI kappa; force 2e-5 N."""
+    L = 0.30
+    kap = helix_curvature(0.01, 0.01)
+    m = _hair(L, n_segments, natural_curvature=kap, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
+    axis = helix_axis(m.root_frame[0], kap)
+    EI = m.stiffness[0, 0]
+    T0 = 0.5 * EI * np.linalg.norm(kap)
+    F0 = 2e-5
+
+    def schedule(t):
+        ramp = min(t / (0.4 * duration), 1.0)
+        if load == "torque":
+            return RodLoads(tip_torque=ramp * T0 * axis), RodBoundary()
+        return RodLoads(tip_force=ramp * F0 * axis), RodBoundary()
+
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
+    return Scene("helix", m, initial_state(m), opts, dt, duration, schedule,
+                 f"30 cm helical fibre under an axial tip {load} (seed fig. 3.16)")
+
+
+def spiral(n_segments: int = 80, dt: float = 2.5e-4, duration: float = 0.2, turns: float = 5.0,
+           coil_radius: float = 2e-3, pitch: float = 1e-3, force: float = 2e-6, release: float = 0.05,
+           rho_inf: float = 1.0) -> Scene:
+    """Seed figs. 3.18/3.19: a pre-stressed spiral spring (helical keratin fibre, 70 um) excited by
+    an axial tip force that is switched off after ``release`` s; no gravity, root clamped. The force
+    acts on the spring axis (the wire tip gets the force plus the torque that transfers it there)."""
+    kap = helix_curvature(coil_radius, pitch)
+    L = turns * 2 * np.pi * np.sqrt(coil_radius**2 + (pitch / (2 * np.pi)) ** 2)
+    m = _hair(L, n_segments, natural_curvature=kap, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
+    axis = helix_axis(m.root_frame[0], kap)
+    st = initial_state(m)
+    # apply the force on the spring axis: add the torque that moves it from the wire tip to the axis
+    centre = st.positions[0, 0] - coil_radius * m.root_frame[0][:, 1]  # principal normal is -d2
+    tip = st.positions[0, -1]
+    offset = (tip - centre) - np.dot(tip - centre, axis) * axis
+    on = RodLoads(tip_force=force * axis, tip_torque=-np.cross(offset, force * axis))
+    off = RodLoads()
+
+    def schedule(t):
+        return (on if t <= release + 1e-12 else off), RodBoundary()
+
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(rho_inf, 1.0))
+    return Scene("spiral", m, st, opts, dt, duration, schedule,
+                 f"helical spring, {turns:g} turns, axial tip force {force:g} N released at {release:g} s (seed fig. 3.18)")
+
+
+def loop(n_segments: int = 60, dt: float = 5e-3, duration: float = 1.5, length: float = 0.45) -> Scene:
+    """Seed fig. 3.17: a straight horizontal rod with a tip torque about d1 (ramped to 2 pi EI / L over
+    the first third of the run, then held); no gravity. The static answer is a closed circle."""
+    m = _hair(length, n_segments, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
+    EI = m.stiffness[0, 0]
+    d1 = m.root_frame[0][:, 0]
+    T0 = 2 * np.pi * EI / length
+
+    def schedule(t):
+        ramp = min(t / (duration / 3), 1.0)
+        return RodLoads(tip_torque=ramp * T0 * d1), RodBoundary()
+
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
+    return Scene("loop", m, initial_state(m), opts, dt, duration, schedule,
+                 "straight rod, tip torque 2 pi EI / L: forms a loop (seed fig. 3.17)")
+
+
+def buckling(n_segments: int = 60, dt: float = 2e-3, duration: float = 1.0, length: float = 0.10,
+             shortening: float = 0.3) -> Scene:
+    """Seed fig. 3.20: the tip moves towards the root along the rod axis at constant speed
+    (end-shortening ``shortening`` L over the run) while an axial torque (ramped to 6 pi EI / L over
+    the first 20 %) is applied; a small mid-span transverse force over the first 10 % triggers the
+    instability. The tip may rotate (its moment is prescribed)."""
+    m = _hair(length, n_segments, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
+    GJ = m.stiffness[0, 2]
+    EI = m.stiffness[0, 0]
+    torque = 3.0 * 2 * np.pi * EI / length  # beyond Greenhill's critical twisting moment (2 pi .. 2.86 pi EI / L)
+    speed = shortening * length / duration
+    nn = m.n_nodes
+    kick = np.zeros((1, nn, 3))
+    kick[0, nn // 2, 2] = 1e-2 * EI / length**2 / m.segment_length[0]
+
+    def schedule(t):
+        ramp = min(t / (0.2 * duration), 1.0)
+        loads = RodLoads(tip_torque=np.array([ramp * torque, 0.0, 0.0]),
+                         distributed_force=kick if t <= 0.1 * duration else None)
+        return loads, RodBoundary(tip="velocity-torque", tip_velocity=np.array([-speed, 0.0, 0.0]))
+
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
+    return Scene("buckling", m, initial_state(m), opts, dt, duration, schedule,
+                 "end-shortening plus axial torque: twist-to-writhe buckling into a loop (seed fig. 3.20)")
+
+
+def strand_stretch(n_segments: int = 50, dt: float = 1e-3, duration: float = 0.6, n_interpolated: int = 180,
+                   stretch: float = 0.3, pull_time: float = 0.15, gravity: bool = True, rho_inf: float = 0.3) -> Scene:
+    """Seed fig. 3.21: a 25 cm curly strand (guide fibre with kappa0 amplitude 150 /m, wavelength
+    2 cm, plus ``n_interpolated`` fibres) hangs from its root; the guide's tip is pulled along -z at
+    constant speed until the end-to-end distance has grown by ``stretch`` of the initial distance,
+    then released (tip BC back to free)."""
+    L = 0.25
+    k0 = sinusoidal_curvature(n_segments, L, 150.0, 0.02, component=0)
+    m = _hair(L, n_segments, natural_curvature=k0, root_direction=(0, 0, -1), root_normal=(1, 0, 0))
+    st = initial_state(m)
+    d0 = float(np.linalg.norm(st.positions[0, -1] - st.positions[0, 0]))
+    speed = stretch * d0 / pull_time
+    g = GRAVITY if gravity else np.zeros(3)
+
+    def schedule(t):
+        if t <= pull_time + 1e-12:
+            return RodLoads(gravity=g), RodBoundary(tip="velocity", tip_velocity=np.array([0.0, 0.0, -speed]))
+        return RodLoads(gravity=g), RodBoundary()
+
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(rho_inf, 1.0))
+    strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
+    return Scene("strand-stretch", m, st, opts, dt, duration, schedule,
+                 f"curly 25 cm strand stretched by {stretch:.0%} and released (seed fig. 3.21)", strand)
+
+
+def moving_support(n_segments: int = 50, dt: float = 2e-3, duration: float = 2.0, n_interpolated: int = 180,
+                   arc_radius: float = 0.30, arc_angle: float = np.pi / 4, period: float = 1.0) -> Scene:
+    """Seed fig. 3.24: the strand hangs under gravity from a support that moves at constant speed up
+    and down along a 45 degree arc of radius 30 cm (a rigid arm rotating about the y axis through the
+    arc centre); velocity BC at the root (v = W x (r - c), omega = W)."""
+    L = 0.25
+    k0 = sinusoidal_curvature(n_segments, L, 150.0, 0.02, component=0)
+    center = np.array([0.0, 0.0, 0.0])
+    root0 = center + arc_radius * np.array([1.0, 0.0, 0.0])
+    m = _hair(L, n_segments, natural_curvature=k0, root_position=root0, root_direction=(0, 0, -1), root_normal=(1, 0, 0))
+    rate = 2 * arc_angle / period  # rad/s, up for half a period, down for the other half
+    axis = np.array([0.0, -1.0, 0.0])  # positive rate lifts the support (x -> z)
+
+    def angle(t):
+        ph = (t % period) / period
+        return rate * period * (ph if ph < 0.5 else 1.0 - ph)
+
+    def schedule(t):
+        # angular velocity of the arm over the step ending at t (constant speed, reversing at the ends)
+        ph = ((t - 1e-12) % period) / period
+        W = (rate if ph < 0.5 else -rate) * axis
+        a = angle(t - 0.5 * dt)
+        r = center + arc_radius * np.array([np.cos(a), 0.0, np.sin(a)])
+        return RodLoads(gravity=GRAVITY), RodBoundary(root_velocity=np.cross(W, r - center), root_angular_velocity=W)
+
+    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
+    strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
+    sc = Scene("moving-support", m, initial_state(m), opts, dt, duration, schedule,
+               "strand under gravity on a support moving along a 45 degree arc of radius 30 cm (seed fig. 3.24)", strand)
+    object.__setattr__(sc, "support_angle", angle)
+    return sc
+
+
+SCENES = {
+    "cantilever": cantilever,
+    "precurved": precurved,
+    "helix": helix,
+    "spiral": spiral,
+    "loop": loop,
+    "buckling": buckling,
+    "strand-stretch": strand_stretch,
+    "moving-support": moving_support,
+}
+
+
+def build_scene(name: str, **kw) -> Scene:
+    """Scene by name (see ``SCENES``); keyword arguments go to its builder."""
+    if name not in SCENES:
+        raise ParameterError(f"unknown scene {name!r}; known: {sorted(SCENES)}")
+    return SCENES[name](**kw)
+
+
+def run_scene(scene: Scene, record_every: int = 1, progress: Callable[[int, int], None] | None = None,
+              interpolate: bool = True) -> Trajectory:
+    """Integrate a scene; record every ``record_every`` steps (and the last)."""
+    solver = ImplicitRodSolver(scene.options)
+    st = scene.state
+    n = scene.n_steps
+    times, pos, curv, kin, its, interp = [st.time], [st.positions], [st.x[:, :, 6:9]], [kinetic_energy(scene.model, st)], [], []
+    arc = scene.model.arc_length[0]
+
+    def _interp(state):
+        if scene.strand is not None and interpolate:
+            interp.append(interpolate_strand(scene.strand, state.positions[0], state.frames[0], arc))
+
+    _interp(st)
+    for i in range(1, n + 1):
+        t = st.time + scene.dt
+        loads, boundary = scene.schedule(t)
+        st, rep = solver.step(scene.model, st, scene.dt, loads, boundary)
+        its.append(float(rep.iterations.mean()))
+        if i % record_every == 0 or i == n:
+            times.append(st.time)
+            pos.append(st.positions)
+            curv.append(st.x[:, :, 6:9])
+            kin.append(kinetic_energy(scene.model, st))
+            _interp(st)
+        if progress is not None:
+            progress(i, n)
+    return Trajectory(np.array(times), np.array(pos), np.array(curv), np.array(kin), np.array(its), st,
+                      np.array(interp) if interp else None)

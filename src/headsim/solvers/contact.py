@@ -1,0 +1,463 @@
+"""Contact as an energy, and the quasi-static contact solve the mask app builds on.
+
+The implicit and quasi-static solvers need contact as a potential with gradient and Hessian. Every
+contact here is a penalty ``E = sum_i kappa a_i max(0, d_i)^2 / 2`` on a per-vertex penetration depth
+d_i (m), with ``kappa`` a pressure per metre of penetration (Pa/m) and ``a_i`` the vertex's share of
+the surface area (m^2), so the contact pressure at vertex i is ``kappa d_i`` (Pa) and the force
+``kappa a_i d_i`` (N), independent of the mesh resolution. Choose kappa ~ 100-1000 x E / h (E the
+softer modulus, h the contact length scale) so that penetration stays well below the indentation.
+
+Terms (all share the signature of :class:`ContactTerm`):
+
+- :class:`SphereObstacle` -- an analytic rigid sphere (e.g. the Hertz indenter), optionally moved
+  by a force-controlled rigid driver.
+- :class:`PlaneContact` -- lagged "contact planes": each active vertex a of one body keeps an exit
+  point q on a triangle of the other surface (barycentric weights fixed) and a direction r; the gap
+  g = (x_a - q) . r is linear in the positions, so E, its gradient and its (exact, PSD) Hessian are
+  cheap. q may lie on a deformable body (forces on both, equal and opposite) or on a rigid driven
+  surface. The active set and the directions are refreshed between Newton solves by
+  :meth:`PlaneContact.update`, using either the seed's consistent directions (Heinze eqs.
+  3.9-3.13, :mod:`headsim.solvers.contact_consistent`) or the naive shortest way out.
+
+Rigid drivers: a :class:`RigidDriver` is one extra unknown u (m), the translation of a rigid part
+along ``axis``; its conjugate force is ``force`` (N), i.e. the energy gets ``-force u``. This is the
+strap force on a rigid mask shell: at equilibrium the contact forces on the shell balance the strap
+force exactly. A driver with ``displacement`` set instead is held at that translation and its
+reaction force is reported.
+
+:func:`solve_quasi_static` minimises elastic + external + contact energy over the free vertex
+positions and the driver unknowns by Newton with line search, refreshing the lagged contact data in
+an outer loop until the active set no longer changes. It accepts a warm start (positions and driver
+displacements of a previous solution) and returns per-vertex contact forces and pressures
+(contact force / vertex area, Pa) and the reaction forces at fixed vertices.
+
+Mask use (next issue): face tissue = FEM model with fixed bone vertices; cushion = deformable FEM
+body in the same model (several bodies share one model, ``body`` ids); shell = rigid surface on one
+driver along the strap axis with the strap force; ``PlaneContact`` between skin and cushion, and
+between the cushion and the shell (or glue the cushion to the shell by fixing it to the driver).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from headsim.errors import ConvergenceError, ParameterError
+from headsim.mesh import geometry
+from headsim.solvers.newton import NewtonOptions, minimize_newton, rigid_body_modes
+
+
+@dataclass(frozen=True)
+class RigidDriver:
+    """A rigid part's translation u (m) along ``axis``, driven by ``force`` (N) or held at ``displacement``."""
+
+    axis: tuple[float, float, float] | np.ndarray
+    force: float | None = None
+    displacement: float | None = None
+
+    def __post_init__(self):
+        a = np.asarray(self.axis, dtype=np.float64)
+        if a.shape != (3,) or not np.isfinite(a).all() or np.linalg.norm(a) == 0:
+            raise ParameterError(f"driver axis must be a non-zero 3-vector, got {self.axis}")
+        object.__setattr__(self, "axis", a / np.linalg.norm(a))
+        if (self.force is None) == (self.displacement is None):
+            raise ParameterError("a rigid driver needs exactly one of force (N) and displacement (m)")
+
+    @property
+    def is_free(self) -> bool:
+        return self.force is not None
+
+
+def surface_vertex_areas(n_vertices: int, triangles: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """(n,) float64, m^2: a third of the area of the incident surface triangles (0 off the surface)."""
+    area = geometry.triangle_areas(vertices, triangles)
+    out = np.zeros(n_vertices)
+    np.add.at(out, np.asarray(triangles).ravel(), np.repeat(area / 3.0, 3))
+    return out
+
+
+class ContactTerm:
+    """Base class: a penalty contact energy on (x (n, 3), u (r,)).
+
+    energy(x, u) -> J; gradient(x, u) -> ((n, 3) N, (r,) N); hessian(x, u) -> (3n + r, 3n + r) PSD;
+    update(x, u) -> bool refreshes lagged data; vertex_forces(x, u) -> (n, 3) N contact force on each
+    vertex; vertex_pressure(x, u) -> (n,) Pa.
+    """
+
+    def update(self, x: np.ndarray, u: np.ndarray) -> bool:
+        return False
+
+
+@dataclass(eq=False)
+class SphereObstacle(ContactTerm):
+    """Rigid sphere (centre ``center`` + u_driver axis, radius ``radius``) pushing on ``vertices``.
+
+    d_i = radius - |x_i - c| (penetration, m); E = sum kappa a_i max(0, d_i)^2 / 2. The Hessian is
+    the Gauss-Newton part kappa a_i grad d grad d^T (PSD; the dropped curvature term is of relative
+    size d / radius).
+
+    center : (3,) m; radius : m; penalty : kappa, Pa/m; vertices : (k,) int64 candidate vertices;
+    areas : (k,) m^2 their surface areas; driver : index of a RigidDriver moving the sphere, or None.
+    """
+
+    center: np.ndarray
+    radius: float
+    penalty: float
+    vertices: np.ndarray
+    areas: np.ndarray
+    driver: int | None = None
+    axis: np.ndarray | None = None  # filled by solve_quasi_static from the driver
+
+    def _geometry(self, x, u):
+        c = np.asarray(self.center, dtype=np.float64)
+        if self.driver is not None:
+            c = c + u[self.driver] * self.axis
+        y = x[self.vertices] - c
+        rho = np.linalg.norm(y, axis=1)
+        n = y / np.maximum(rho, 1e-300)[:, None]
+        d = np.maximum(self.radius - rho, 0.0)
+        return n, d
+
+    def energy(self, x, u):
+        _, d = self._geometry(x, u)
+        return 0.5 * self.penalty * float(np.sum(self.areas * d * d))
+
+    def gradient(self, x, u):
+        n, d = self._geometry(x, u)
+        gx = np.zeros_like(x)
+        s = self.penalty * self.areas * d
+        np.add.at(gx, self.vertices, -s[:, None] * n)
+        gu = np.zeros(len(u))
+        if self.driver is not None:
+            gu[self.driver] = float(np.sum(s * (n @ self.axis)))
+        return gx, gu
+
+    def hessian(self, x, u):
+        n_dof = 3 * len(x) + len(u)
+        nn, d = self._geometry(x, u)
+        act = d > 0
+        if not act.any():
+            return sp.csr_matrix((n_dof, n_dof))
+        vid, nv, w = self.vertices[act], nn[act], self.penalty * self.areas[act]
+        # J = [-n (dofs of x_i), n . axis (driver dof)]
+        cols = [3 * vid[:, None] + np.arange(3)[None, :]]
+        vals = [-nv]
+        if self.driver is not None:
+            cols.append(np.full((len(vid), 1), 3 * len(x) + self.driver))
+            vals.append((nv @ self.axis)[:, None])
+        cols = np.concatenate(cols, axis=1)
+        vals = np.concatenate(vals, axis=1)
+        k = cols.shape[1]
+        rows = np.repeat(cols, k, axis=1).ravel()
+        cc = np.tile(cols, (1, k)).ravel()
+        data = (w[:, None, None] * vals[:, :, None] * vals[:, None, :]).ravel()
+        return sp.csr_matrix((data, (rows, cc)), shape=(n_dof, n_dof))
+
+    def vertex_forces(self, x, u):
+        n, d = self._geometry(x, u)
+        f = np.zeros_like(x)
+        np.add.at(f, self.vertices, (self.penalty * self.areas * d)[:, None] * n)
+        return f
+
+    def vertex_pressure(self, x, u):
+        _, d = self._geometry(x, u)
+        p = np.zeros(len(x))
+        p[self.vertices] = self.penalty * d
+        return p
+
+
+@dataclass(eq=False)
+class PlaneContact(ContactTerm):
+    """Penalty on lagged contact planes between vertices of one body and the surface of another.
+
+    Each active contact c: vertex ``slave[c]`` (index into x), exit point q_c = sum_b w_cb y_cb where
+    y are the three triangle vertices -- deformable ones (index into x) or rigid ones (rows of
+    ``rigid_vertices`` translated by the driver), direction r_c (unit, pointing out of the other
+    body). Gap g_c = (x_a - q_c) . r_c; E = sum kappa a_c max(0, -g_c)^2 / 2.
+
+    Built and refreshed by :meth:`update` from the current positions:
+
+    slave_vertices : (k,) int64, candidates (surface vertices of body A)
+    slave_areas : (k,) m^2
+    master_triangles : (t, 3) int64 triangles of the other surface (indices into x, or into
+        ``rigid_vertices`` when that is given)
+    rigid_vertices : (p, 3) m rest positions of a rigid master surface, or None (deformable master)
+    driver : RigidDriver index moving the rigid master, or None (fixed rigid / deformable)
+    penalty : kappa, Pa/m
+    direction : "consistent" (Heinze eqs. 3.9-3.13) or "naive" (shortest way out)
+    slave_edges : (e, 2) int64 springs / tet edges of body A (needed for "consistent")
+    """
+
+    slave_vertices: np.ndarray
+    slave_areas: np.ndarray
+    master_triangles: np.ndarray
+    penalty: float
+    rigid_vertices: np.ndarray | None = None
+    driver: int | None = None
+    direction: str = "consistent"
+    slave_edges: np.ndarray | None = None
+    axis: np.ndarray | None = None
+    margin: float = 0.0
+    # lagged contact data
+    active: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))      # (c,) index into slave_vertices
+    tri_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    weights: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def __post_init__(self):
+        if self.direction not in ("consistent", "naive"):
+            raise ParameterError(f"direction must be 'consistent' or 'naive', got {self.direction!r}")
+        if self.direction == "consistent" and self.slave_edges is None:
+            raise ParameterError("consistent directions need slave_edges (the springs / tet edges of the body)")
+        self.slave_vertices = np.asarray(self.slave_vertices, dtype=np.int64)
+        self.slave_areas = np.asarray(self.slave_areas, dtype=np.float64)
+        self.master_triangles = np.asarray(self.master_triangles, dtype=np.int64)
+
+    # -- geometry of the master surface ---------------------------------------------------------------
+    def _master_positions(self, x, u):
+        if self.rigid_vertices is None:
+            return x
+        y = np.asarray(self.rigid_vertices, dtype=np.float64)
+        if self.driver is not None:
+            y = y + u[self.driver] * self.axis
+        return y
+
+    def _gaps(self, x, u):
+        y = self._master_positions(x, u)
+        q = np.einsum("cb,cbk->ck", self.weights, y[self.tri_vertices])
+        xa = x[self.slave_vertices[self.active]]
+        return np.einsum("ck,ck->c", xa - q, self.normals)
+
+    def energy(self, x, u):
+        if len(self.active) == 0:
+            return 0.0
+        d = np.maximum(-self._gaps(x, u), 0.0)
+        return 0.5 * self.penalty * float(np.sum(self.slave_areas[self.active] * d * d))
+
+    def _jacobian(self, x, u):
+        """Columns (c, k) and values (c, k) of dg_c/dz (z = [x.ravel(), u])."""
+        nc = len(self.active)
+        r = self.normals
+        cols = [3 * self.slave_vertices[self.active][:, None] + np.arange(3)]
+        vals = [r]
+        if self.rigid_vertices is None:
+            for b in range(3):
+                cols.append(3 * self.tri_vertices[:, b][:, None] + np.arange(3))
+                vals.append(-self.weights[:, b][:, None] * r)
+        elif self.driver is not None:
+            cols.append(np.full((nc, 1), 3 * len(x) + self.driver))
+            vals.append(-(r @ self.axis)[:, None])
+        return np.concatenate(cols, axis=1), np.concatenate(vals, axis=1)
+
+    def gradient(self, x, u):
+        gx = np.zeros_like(x)
+        gu = np.zeros(len(u))
+        if len(self.active) == 0:
+            return gx, gu
+        d = np.maximum(-self._gaps(x, u), 0.0)
+        s = -self.penalty * self.slave_areas[self.active] * d  # dE/dg
+        cols, vals = self._jacobian(x, u)
+        flat = np.zeros(3 * len(x) + len(u))
+        np.add.at(flat, cols.ravel(), (s[:, None] * vals).ravel())
+        return flat[:3 * len(x)].reshape(-1, 3), flat[3 * len(x):]
+
+    def hessian(self, x, u):
+        n_dof = 3 * len(x) + len(u)
+        if len(self.active) == 0:
+            return sp.csr_matrix((n_dof, n_dof))
+        d = -self._gaps(x, u)
+        w = self.penalty * self.slave_areas[self.active] * (d > 0)
+        cols, vals = self._jacobian(x, u)
+        k = cols.shape[1]
+        rows = np.repeat(cols, k, axis=1).ravel()
+        cc = np.tile(cols, (1, k)).ravel()
+        data = (w[:, None, None] * vals[:, :, None] * vals[:, None, :]).ravel()
+        return sp.csr_matrix((data, (rows, cc)), shape=(n_dof, n_dof))
+
+    def vertex_forces(self, x, u):
+        """(n, 3) N contact force on every deformable vertex (slaves and deformable masters)."""
+        gx, _ = self.gradient(x, u)
+        return -gx
+
+    def vertex_pressure(self, x, u):
+        """(n,) Pa: kappa x penetration at the slave vertices."""
+        p = np.zeros(len(x))
+        if len(self.active):
+            d = np.maximum(-self._gaps(x, u), 0.0)
+            p[self.slave_vertices[self.active]] = self.penalty * d
+        return p
+
+    # -- active set and lagged directions ------------------------------------------------------------
+    def update(self, x, u) -> bool:
+        """Recompute the active contacts (slave vertices inside the master surface) and their planes.
+
+        Returns True if the set of active vertices changed.
+        """
+        from headsim.solvers.contact_consistent import exit_points
+
+        y = self._master_positions(x, u)
+        old = set(self.active.tolist())
+        # keep the previously active vertices (lagged planes) and add the new penetrations
+        res = exit_points(x, self.slave_vertices, y, self.master_triangles, method=self.direction,
+                          edges=self.slave_edges)
+        inside = res.inside.copy()
+        keep = np.zeros(len(self.slave_vertices), dtype=bool)
+        keep[self.active] = True
+        if len(self.active):
+            g_old = self._gaps(x, u)
+            still = self.active[g_old < self.margin]
+            keep[:] = False
+            keep[still] = True
+        new_active = np.flatnonzero(inside | keep)
+        # vertices with a fresh exit point take it; kept ones outside keep their old plane
+        tri = np.zeros((len(new_active), 3), np.int64)
+        wts = np.zeros((len(new_active), 3))
+        nrm = np.zeros((len(new_active), 3))
+        old_pos = {a: i for i, a in enumerate(self.active.tolist())}
+        fresh = inside[new_active] & res.valid[new_active]
+        for j, a in enumerate(new_active.tolist()):
+            if fresh[j]:
+                tri[j] = self.master_triangles[res.triangle[a]]
+                wts[j] = res.barycentric[a]
+                nrm[j] = res.direction[a]
+            elif a in old_pos:
+                i = old_pos[a]
+                tri[j], wts[j], nrm[j] = self.tri_vertices[i], self.weights[i], self.normals[i]
+            else:
+                tri[j] = self.master_triangles[res.triangle[a]] if res.triangle[a] >= 0 else 0
+                wts[j] = res.barycentric[a] if res.triangle[a] >= 0 else 0
+                nrm[j] = 0.0  # no usable exit point: inactive
+        ok = np.linalg.norm(nrm, axis=1) > 0
+        self.active, self.tri_vertices, self.weights, self.normals = new_active[ok], tri[ok], wts[ok], nrm[ok]
+        return set(self.active.tolist()) != old
+
+
+@dataclass(frozen=True)
+class QuasiStaticOptions:
+    """Options of :func:`solve_quasi_static`.
+
+    newton : inner Newton options
+    max_contact_updates : outer refreshes of the lagged contact data
+    force_tolerance : N; default 1e-6 x (largest applied force, driver force, or weight)
+    """
+
+    newton: NewtonOptions = NewtonOptions(relative_tolerance=1e-10)
+    max_contact_updates: int = 20
+    force_tolerance: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class QuasiStaticResult:
+    """Equilibrium of :func:`solve_quasi_static`.
+
+    positions : (n, 3) m; driver_displacement : (r,) m; contact_forces : (n, 3) N on the deformable
+    vertices; contact_pressure : (n,) Pa; reaction_forces : (n, 3) N that the fixed vertices exert
+    on the body; driver_forces : (r,) N contact force on each driven part along its axis;
+    newton_iterations : total; contact_updates : outer iterations.
+    """
+
+    positions: np.ndarray
+    driver_displacement: np.ndarray
+    contact_forces: np.ndarray
+    contact_pressure: np.ndarray
+    reaction_forces: np.ndarray
+    driver_forces: np.ndarray
+    newton_iterations: int
+    contact_updates: int
+
+
+def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Sequence[RigidDriver] = (), *,
+                       initial_positions: np.ndarray | None = None, initial_drivers: np.ndarray | None = None,
+                       fixed_dofs: np.ndarray | None = None,
+                       options: QuasiStaticOptions = QuasiStaticOptions()) -> QuasiStaticResult:
+    """Static equilibrium: minimise E_model(x) + sum contact(x, u) - sum F_k u_k.
+
+    model : MassSpringModel or FemModel (its ``fixed`` vertices stay at ``initial_positions``)
+    contacts : contact terms (their lagged data is refreshed here)
+    drivers : rigid drivers; contact terms refer to them by index
+    initial_positions : (n, 3) m warm start (default: rest positions); fixed vertices keep these
+    initial_drivers : (r,) m warm start of the driver translations
+    fixed_dofs : (n, 3) bool, optional per-component constraints (symmetry planes) added to ``fixed``
+    """
+    x0 = np.array(model.rest_positions if initial_positions is None else initial_positions, dtype=np.float64)
+    n = len(x0)
+    r = len(drivers)
+    u0 = np.zeros(r) if initial_drivers is None else np.array(initial_drivers, dtype=np.float64)
+    for k, d in enumerate(drivers):
+        if not d.is_free:
+            u0[k] = d.displacement
+    for c in contacts:
+        if getattr(c, "driver", None) is not None:
+            if not 0 <= c.driver < r:
+                raise ParameterError(f"contact refers to driver {c.driver}, but {r} drivers were given")
+            c.axis = drivers[c.driver].axis
+    fixed = np.repeat(np.asarray(model.fixed, dtype=bool), 3).reshape(n, 3)
+    if fixed_dofs is not None:
+        fixed = fixed | np.asarray(fixed_dofs, dtype=bool).reshape(n, 3)
+    free = np.concatenate([~fixed.ravel(), [d.is_free for d in drivers]]).astype(bool)
+    forces_u = np.array([d.force if d.is_free else 0.0 for d in drivers])
+
+    def split(z):
+        return z[:3 * n].reshape(n, 3), z[3 * n:]
+
+    def energy(z):
+        x, u = split(z)
+        e = model.energy(x) - float(forces_u @ u)
+        return e + sum(c.energy(x, u) for c in contacts)
+
+    def gradient(z):
+        x, u = split(z)
+        gx = model.gradient(x)
+        gu = -forces_u.copy()
+        for c in contacts:
+            a, b = c.gradient(x, u)
+            gx = gx + a
+            gu = gu + b
+        return np.concatenate([gx.ravel(), gu])
+
+    def hessian(z, project=True):
+        x, u = split(z)
+        h = sp.block_diag([model.hessian(x, project=project), sp.csr_matrix((r, r))], format="csr") if r else \
+            model.hessian(x, project=project)
+        for c in contacts:
+            h = h + c.hessian(x, u)
+        return h
+
+    def near_null(z):
+        modes = rigid_body_modes(z[:3 * n].reshape(n, 3))
+        return np.vstack([modes, np.zeros((r, 6))])
+
+    scale = max([abs(f) for f in forces_u] + [float(np.max(np.abs(model.external_force))) if n else 0.0] + [0.0])
+    tol = options.force_tolerance if options.force_tolerance is not None else 1e-6 * scale if scale > 0 else None
+    size = float(np.linalg.norm(np.ptp(x0, axis=0))) or 1.0
+    max_step = options.newton.max_step if options.newton.max_step is not None else 0.05 * size
+    newton = NewtonOptions(**{**options.newton.__dict__, "force_tolerance": tol, "max_step": max_step})
+    z = np.concatenate([x0.ravel(), u0])
+    total_it = 0
+    for c in contacts:
+        c.update(*split(z))
+    for outer in range(1, options.max_contact_updates + 1):
+        res = minimize_newton(energy, gradient, hessian, z, free, newton, near_null=near_null,
+                              what="quasi-static contact solve")
+        z = res.z
+        total_it += res.iterations
+        changed = [c.update(*split(z)) for c in contacts]
+        if not any(changed):
+            break
+    else:
+        raise ConvergenceError(f"contact active set still changing after {options.max_contact_updates} updates")
+    x, u = split(z)
+    cf = np.zeros_like(x)
+    pressure = np.zeros(n)
+    gu_contact = np.zeros(r)
+    for c in contacts:
+        cf += c.vertex_forces(x, u)
+        pressure = np.maximum(pressure, c.vertex_pressure(x, u))
+        gu_contact += c.gradient(x, u)[1]
+    # reaction at constrained dofs: the support must supply R = dPi/dx there (free dofs have dPi/dx = 0)
+    g = gradient(z)[:3 * n].reshape(n, 3)
+    reaction = np.where(fixed, g, 0.0)
+    return QuasiStaticResult(x, u, cf, pressure, reaction, -gu_contact, total_it, outer)

@@ -1,0 +1,90 @@
+"""Fibre geometry: CSR layout, global segment indices, adjacency, the seed's total fibre, contacts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from headsim.collide.fibres import FibreSet, capsule_contacts, fibres_from_arrays, fibres_from_rods
+from headsim.errors import ParameterError
+
+
+def three_fibres():
+    nodes = np.arange(3 * 9, dtype=float).reshape(9, 3) * 0.01
+    return FibreSet(nodes, [0, 3, 5, 9], 0.001)  # 2 + 1 + 3 segments
+
+
+def test_segment_tables():
+    f = three_fibres()
+    assert (f.n_fibres, f.n_nodes, f.n_segments) == (3, 9, 6)
+    np.testing.assert_array_equal(f.segment_offsets, [0, 2, 3, 6])
+    np.testing.assert_array_equal(f.segment_fibre, [0, 0, 1, 2, 2, 2])
+    np.testing.assert_array_equal(f.segment_start, [0, 1, 3, 5, 6, 7])
+    np.testing.assert_array_equal(f.segment_local, [0, 1, 0, 0, 1, 2])
+    np.testing.assert_array_equal(f.segment_previous, [-1, 0, -1, -1, 3, 4])
+    np.testing.assert_array_equal(f.segment_next, [1, -1, -1, 4, 5, -1])
+    p, q = f.segment_endpoints()
+    np.testing.assert_array_equal(q[3], f.nodes[6])
+
+
+def test_adjacency_is_same_fibre_neighbours_only():
+    f = three_fibres()
+    a = np.array([0, 0, 1, 2, 3, 3])
+    b = np.array([0, 1, 2, 3, 5, 4])
+    # 1–2 and 2–3 are consecutive global ids on different fibres: not adjacent
+    np.testing.assert_array_equal(f.adjacent(a, b), [True, True, False, False, False, True])
+
+
+def test_total_fibre_is_boustrophedon():
+    f = three_fibres()  # 2, 1, 3 segments: root→tip, tip→root, root→tip
+    np.testing.assert_array_equal(f.total_fibre_order(), [0, 1, 2, 3, 4, 5])
+    np.testing.assert_array_equal(f.total_fibre_order([2, 0, 1]), [3, 4, 5, 1, 0, 2])
+    g = FibreSet(np.zeros((9, 3)), [0, 3, 6, 9], 0.1)  # 2, 2, 2 segments
+    np.testing.assert_array_equal(g.total_fibre_order(), [0, 1, 3, 2, 4, 5])
+    with pytest.raises(ParameterError):
+        f.total_fibre_order([0, 0, 1])
+
+
+def test_per_node_radius_becomes_enclosing_segment_radius():
+    nodes = np.zeros((5, 3))
+    nodes[:, 0] = np.arange(5)
+    f = fibres_from_arrays(nodes, [0, 2, 5], [1.0, 2.0, 3.0, 5.0, 4.0])
+    np.testing.assert_array_equal(f.radius, [2.0, 5.0, 5.0])
+    g = fibres_from_rods(nodes, [0, 2, 5], [1.0, 2.0, 3.0])  # per segment
+    np.testing.assert_array_equal(g.radius, [1.0, 2.0, 3.0])
+
+
+@pytest.mark.parametrize(
+    "nodes, offsets, radius",
+    [
+        (np.zeros((4, 2)), [0, 4], 1.0),
+        (np.full((4, 3), np.nan), [0, 4], 1.0),
+        (np.zeros((4, 3)), [0, 1, 4], 1.0),  # a one-node fibre
+        (np.zeros((4, 3)), [0, 3], 1.0),  # offsets do not end at N
+        (np.zeros((4, 3)), [0, 4], -1.0),
+        (np.zeros((4, 3)), [0, 4], [1.0, 1.0]),
+    ],
+)
+def test_bad_input_is_refused(nodes, offsets, radius):
+    with pytest.raises(ParameterError):
+        FibreSet(nodes, offsets, radius)
+
+
+def test_capsule_contact_record_of_crossing_capsules():
+    # A along x at z = 0, B along y at z = 0.15; radii 0.1 → depth 0.05, normal from B to A = −z
+    nodes = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0.15], [0, 1, 0.15]], float)
+    f = FibreSet(nodes, [0, 2, 4], 0.1)
+    c = capsule_contacts(f, [[0, 1]], [[0.5, 0.5]])
+    np.testing.assert_allclose(c.normal[0], [0, 0, -1])
+    assert c.depth[0] == pytest.approx(0.05)
+    np.testing.assert_allclose(c.point_a[0], [0, 0, 0.1])
+    np.testing.assert_allclose(c.point_b[0], [0, 0, 0.05])
+    assert (c.body_a[0], c.body_b[0], c.obstacle[0]) == (0, 1, False)
+
+
+def test_crossing_axes_get_a_perpendicular_normal():
+    nodes = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0]], float)
+    f = FibreSet(nodes, [0, 2, 4], 0.1)
+    c = capsule_contacts(f, [[0, 1]], [[0.5, 0.5]])
+    np.testing.assert_allclose(np.abs(c.normal[0]), [0, 0, 1])
+    assert c.depth[0] == pytest.approx(0.2)

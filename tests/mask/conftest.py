@@ -1,0 +1,29 @@
+"""Shared fixtures for the mask tests: bundled faces and their landmarks (computed once)."""
+
+import pytest
+
+from headsim.data import face_path, population_paths
+from headsim.mask import find_landmarks
+from headsim.mesh.io import load_surface
+
+FACE_NAMES = ["neutral", "identity000", "identity001"] + [p.stem.replace("face_", "") for p in population_paths()]
+
+
+@pytest.fixture(scope="session")
+def bundled_faces():
+    return {name: load_surface(face_path(name)) for name in FACE_NAMES}
+
+
+@pytest.fixture(scope="session")
+def bundled_landmarks(bundled_faces):
+    return {name: find_landmarks(face) for name, face in bundled_faces.items()}
+
+
+@pytest.fixture(scope="session")
+def neutral_face(bundled_faces):
+    return bundled_faces["neutral"]
+
+
+@pytest.fixture(scope="session")
+def neutral_landmarks(bundled_landmarks):
+    return bundled_landmarks["neutral"]
