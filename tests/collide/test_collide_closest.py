@@ -9,10 +9,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from headsim.collide import TriangleBVH
-from headsim.collide._reference import closest_points_bruteforce
+from headsim.collide._reference import closest_points_bruteforce, icosphere
 from headsim.errors import MeshError, ParameterError
-
-from conftest import icosphere
 
 # coordinates on a 2^-16 grid: exact ties and degenerate (collinear, repeated-vertex) triangles
 # still occur, but no denormal-scale triangles on which the reference's projection is meaningless

@@ -9,11 +9,11 @@ from hypothesis import strategies as st
 from headsim.collide import TriangleBVH
 from headsim.collide._reference import (
     contains_bruteforce,
+    icosphere,
+    random_star_shape,
     signed_distance_bruteforce,
     winding_number_exact,
 )
-
-from conftest import icosphere, random_star_shape
 
 
 def _query_points(rng, v, n=200):

@@ -9,10 +9,13 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from headsim.collide import TriangleBVH
-from headsim.collide._reference import intersect_rays_all_bruteforce, intersect_rays_bruteforce
+from headsim.collide._reference import (
+    icosphere,
+    intersect_rays_all_bruteforce,
+    intersect_rays_bruteforce,
+    random_star_shape,
+)
 from headsim.errors import ParameterError
-
-from conftest import icosphere, random_star_shape
 
 # coordinates on a 2^-16 grid: hypothesis still finds exact ties (rays through edges and vertices,
 # rays in a triangle's plane) but no denormal-scale triangles whose hit test is ill-conditioned

@@ -7,9 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from headsim.collide import TriangleBVH
-from headsim.collide._reference import closest_points_bruteforce, intersect_rays_bruteforce
-
-from conftest import random_star_shape
+from headsim.collide._reference import closest_points_bruteforce, intersect_rays_bruteforce, random_star_shape
 
 
 @settings(max_examples=20, deadline=None)

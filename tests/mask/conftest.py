@@ -10,20 +10,21 @@ FACE_NAMES = ["neutral", "identity000", "identity001"] + [p.stem.replace("face_"
 
 
 @pytest.fixture(scope="session")
-def bundled_faces():
-    return {name: load_surface(face_path(name)) for name in FACE_NAMES}
+def neutral_face():
+    return load_surface(face_path("neutral"))
 
 
 @pytest.fixture(scope="session")
-def bundled_landmarks(bundled_faces):
-    return {name: find_landmarks(face) for name, face in bundled_faces.items()}
+def neutral_landmarks(neutral_face):
+    return find_landmarks(neutral_face)
 
 
 @pytest.fixture(scope="session")
-def neutral_face(bundled_faces):
-    return bundled_faces["neutral"]
+def bundled_faces(neutral_face):
+    return {name: neutral_face if name == "neutral" else load_surface(face_path(name)) for name in FACE_NAMES}
 
 
 @pytest.fixture(scope="session")
-def neutral_landmarks(bundled_landmarks):
-    return bundled_landmarks["neutral"]
+def bundled_landmarks(bundled_faces, neutral_landmarks):
+    return {name: neutral_landmarks if name == "neutral" else find_landmarks(face)
+            for name, face in bundled_faces.items()}

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from headsim.data import population_paths
 from headsim.errors import MeshError, UnitsError
 from headsim.mask import LANDMARK_NAMES, find_landmarks, plane_section_points
-from headsim.mesh import SurfaceMesh
 from headsim.mesh.primitives import icosphere
 
-from conftest import FACE_NAMES
+FACE_NAMES = ["neutral", "identity000", "identity001"] + [p.stem.replace("face_", "") for p in population_paths()]
 
 
 def test_all_fifteen_bundled_faces_are_covered():
@@ -100,3 +100,40 @@ def test_section_points_lie_on_the_plane_and_the_mesh(neutral_face):
     far = plane_section_points(neutral_face.vertices, neutral_face.triangles, np.array([5.0, 0, 0]),
                                np.array([1.0, 0, 0]))
     assert far.shape == (0, 3)
+
+
+def test_section_segments_match_the_reference(neutral_face):
+    from headsim.mask._reference import plane_section_reference
+    from headsim.mask.landmarks import plane_section_segments
+
+    point, normal = np.array([0.003, 0.01, 0.1]), np.array([0.2, 1.0, 0.1])
+    got = plane_section_segments(neutral_face.vertices, neutral_face.triangles, point, normal)
+    want = np.array(plane_section_reference(neutral_face.vertices, neutral_face.triangles, point, normal))
+    assert got.shape == want.shape and len(got) > 50
+    np.testing.assert_allclose(np.sort(got.reshape(len(got), 6), axis=0), np.sort(want.reshape(len(want), 6), axis=0),
+                               atol=1e-12)
+
+
+def test_whole_head_scan_with_a_given_forward_axis(neutral_landmarks):
+    """The bundled whole head (face + scalp, nearly closed) is refused without axes; with
+    forward given, its landmarks agree with the face-only mesh's (same skin)."""
+    from headsim.data import head_path
+    from headsim.mesh.io import load_surface
+
+    head = load_surface(head_path())
+    with pytest.raises(MeshError, match="whole-head"):
+        find_landmarks(head)
+    lm = find_landmarks(head, forward=[0, 0, 1])
+    for name in LANDMARK_NAMES:
+        assert np.linalg.norm(getattr(lm, name) - getattr(neutral_landmarks, name)) < 3e-3, name
+
+
+def test_noise_and_refinement_barely_move_the_landmarks(neutral_face, neutral_landmarks):
+    from headsim.mesh.subdivide import subdivide_loop
+
+    rng = np.random.default_rng(0)
+    noisy = neutral_face.with_vertices(neutral_face.vertices + rng.normal(0, 0.3e-3, neutral_face.vertices.shape))
+    for variant in (noisy, subdivide_loop(neutral_face)):
+        lm = find_landmarks(variant)
+        for name in LANDMARK_NAMES:
+            assert np.linalg.norm(getattr(lm, name) - getattr(neutral_landmarks, name)) < 3e-3, name

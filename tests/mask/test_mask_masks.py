@@ -131,3 +131,16 @@ def test_too_tight_outline_is_refused():
 
     with pytest.raises(ParameterError, match="lower the taper"):
         build_parametric_mask(replace(_DESIGNS["nasal"], taper=0.8))
+
+
+def test_with_vertices_and_transformed_keep_labels(masks):
+    m = masks["nasal-S"]
+    moved = m.with_vertices(m.tetmesh.vertices + [0.0, 0.0, 0.01])
+    np.testing.assert_array_equal(moved.tetmesh.fixed, m.tetmesh.fixed)
+    np.testing.assert_array_equal(moved.contact_triangles, m.contact_triangles)
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    turned = m.transformed(rot, [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(turned.up, [-1.0, 0.0, 0.0])
+    np.testing.assert_allclose(turned.airway_center, [1.0, 2.0, 3.0])
+    with pytest.raises(ParameterError, match="rotation"):
+        m.transformed(np.diag([1.0, 1.0, -1.0]), np.zeros(3))

@@ -18,7 +18,7 @@ def grid_surface(nx: int = 6, ny: int = 5, spacing: float = 0.01, name: str = "g
     return SurfaceMesh(v, tri, name=name)
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def make_grid():
     """The :func:`grid_surface` factory."""
     return grid_surface

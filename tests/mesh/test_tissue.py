@@ -9,7 +9,7 @@ from headsim.errors import MeshError, ParameterError
 from headsim.mesh import REGION_BONE, REGION_TISSUE, SurfaceMesh
 from headsim.mesh.primitives import icosphere
 from headsim.mesh.quality import tet_quality
-from headsim.mesh.tissue import TissueOptions, build_tissue_layer, extrude_tissue_layer, prism_tets
+from headsim.mesh.tissue import TissueOptions, build_tissue_layer, extrude_tissue_layer
 
 
 def _boundary_face_count(tets: np.ndarray) -> int:
@@ -84,18 +84,16 @@ def test_bad_arguments(make_grid):
         TissueOptions(min_volume_ratio=0.5, min_direction_cosine=0.2)
 
 
-def _bump(height: float, width: float = 0.004, n: int = 24, size: float = 0.06) -> SurfaceMesh:
+def _bump(grid_surface, height: float, width: float = 0.004, n: int = 24, size: float = 0.06) -> SurfaceMesh:
     """Flat square with a sharp Gaussian bump (a 'nose'): strongly convex at its top."""
-    from conftest import grid_surface
-
     g = grid_surface(n, n, spacing=size / n)
     c = g.vertices[:, :2] - size / 2
     z = height * np.exp(-np.sum(c**2, axis=1) / (2 * width**2))
     return g.with_vertices(np.column_stack([g.vertices[:, :2], z]))
 
 
-def test_sharp_convex_bump_gets_thinner_tissue_not_inverted_tets():
-    face = _bump(height=0.012)
+def test_sharp_convex_bump_gets_thinner_tissue_not_inverted_tets(make_grid):
+    face = _bump(make_grid, height=0.012)
     layer = extrude_tissue_layer(face, thickness=0.01, layers=3, use_cache=False)
     _check_structure(layer, face_n_boundary_edges=len(face.boundary_loops[0]) if not len(layer.trimmed_triangles) else
                      len(SurfaceMesh(face.vertices, layer.skin_triangles).boundary_loops[0]))
@@ -107,11 +105,9 @@ def test_sharp_convex_bump_gets_thinner_tissue_not_inverted_tets():
     assert tet_quality(layer.mesh).radius_ratio.min() > 0
 
 
-def test_folded_sheet_is_trimmed_or_refused():
+def test_folded_sheet_is_trimmed_or_refused(make_grid):
     # a sheet folded back on itself (a 'lip'): two layers 2 mm apart joined at one edge
-    from conftest import grid_surface
-
-    g = grid_surface(10, 4, spacing=0.002)
+    g = make_grid(10, 4, spacing=0.002)
     v, t = g.vertices, g.triangles
     n = len(v)
     upper = v + [0, 0, 0.002]

@@ -171,10 +171,8 @@ def test_repair_undoes_random_flips_of_a_closed_surface(flips, root_flipped):
 
 @settings(max_examples=25, deadline=None)
 @given(flips=st.lists(st.booleans(), min_size=24, max_size=24))
-def test_repair_of_open_surface_keeps_majority_winding(flips):
-    from conftest import grid_surface
-
-    g = grid_surface(3, 4)  # 24 triangles
+def test_repair_of_open_surface_keeps_majority_winding(make_grid, flips):
+    g = make_grid(3, 4)  # 24 triangles
     mask = np.array(flips)
     tri = np.where(mask[:, None], g.triangles[:, ::-1], g.triangles)
     fixed, rep = repair_surface(SurfaceMesh(g.vertices, tri))

@@ -43,6 +43,10 @@ def _register() -> None:
 
     app.add_typer(mesh_cmd.app, name="mesh")
 
+    from headsim.cli import scene_cmd
+
+    app.add_typer(scene_cmd.app, name="scene")
+
     from headsim.cli import graft_cmd
 
     app.command("graft")(graft_cmd.graft)

@@ -64,7 +64,7 @@ def _report_table(report, title: str):
     return table
 
 
-def _surface_table(path: Path, mesh, units: str):
+def _surface_table(path: Path, mesh, units: str, valid: bool = True):
     from rich.table import Table
 
     b = mesh.bounds * 1e3
@@ -80,8 +80,10 @@ def _surface_table(path: Path, mesh, units: str):
     table.add_row("area, cm²", f"{mesh.area * 1e4:.2f}")
     closed = mesh.is_closed
     table.add_row("closed", "yes" if closed else "no")
-    if closed:
+    if closed and valid:
         table.add_row("volume, cm³", f"{mesh.signed_volume() * 1e6:.3f}")
+    elif closed:
+        table.add_row("volume, cm³", "(not defined until the defects below are fixed)")
     else:
         loops = mesh.boundary_loops
         table.add_row("boundary loops", f"{len(loops)} (lengths {', '.join(str(len(lp)) for lp in loops[:8])})")
@@ -100,7 +102,7 @@ def info_cmd(
     """
     path, loaded = _load(file, units, repair, validate=False)
     con = _console()
-    con.print(_surface_table(path, loaded.mesh, units))
+    con.print(_surface_table(path, loaded.mesh, units, valid=loaded.validation.ok))
     if loaded.repair is not None:
         con.print(f"repair: {loaded.repair.summary()}")
     con.print(_report_table(loaded.validation, "validation"))
@@ -138,13 +140,16 @@ def tetra_cmd(
     units: str = typer.Option("m", "--units", help=_UNITS_HELP),
     thickness_mm: float = typer.Option(10.0, "--thickness-mm", min=0.0, help="open faces: tissue thickness to the bone, mm (Heinze: 10)"),
     layers: int = typer.Option(3, "--layers", min=1, help="open faces: tet layers through the thickness"),
-    target_edge_mm: float = typer.Option(None, "--target-edge-mm", help="closed surfaces: tet edge length, mm (default: mean surface edge)"),
+    target_edge_mm: float = typer.Option(None, "--target-edge-mm", help="closed surfaces: tet edge length, mm (default: tetwild 1/20 of the box diagonal, gmsh the mean surface edge)"),
     method: str = typer.Option("tetwild", "--method", help="closed surfaces: tetwild (default) or gmsh (optional, GPL)"),
     repair: bool = typer.Option(False, "--repair", help="apply safe surface repairs first"),
     out: Path = typer.Option(None, "--out", help="write the tet mesh (.vtu, .msh, .mesh, .vtk), in metres"),
 ) -> None:
-    """Tetrahedralise FILE: an open face becomes a tissue layer over fixed bone (Heinze §2.3);
-    a closed surface is filled by a mesher. Prints the model's statistics."""
+    """Tetrahedralise FILE and print the model's statistics.
+
+    An open face becomes a tissue layer over fixed bone (Heinze §2.3); a closed surface is filled
+    by a mesher.
+    """
     import numpy as np
     from rich.table import Table
 

@@ -1,6 +1,7 @@
 """Numba kernels: building and updating bounding-volume hierarchies over capsule segments.
 
-A tree over S leaves is stored in arrays (n_nodes = 2S − 1, every child index > its parent's):
+A tree over S leaves is stored in arrays (n_nodes = 2S − 1) in pre-order: node u's subtree is the
+id range ``[u, u + 2 (hi[u] − lo[u]) − 1)``, its left child is u + 1:
 ``left, right`` (n_nodes,) int64 (−1 at leaves), ``lo, hi`` (n_nodes,) int64 — the node covers leaf
 slots ``perm[lo:hi]``; ``perm`` (S,) int64 maps leaf slots to global segment ids; ``bv`` (n_nodes, w)
 float64 BV rows (layout in ``bounding_volumes``). Segments: ``nodes`` (N, 3) m, ``seg_start`` (S,)
@@ -54,7 +55,7 @@ def build_topological(n_leaves, left, right, lo, hi):
             right[u] = -1
             continue
         mid = lo[u] + (n + 1) // 2
-        a, b = count, count + 1
+        a, b = u + 1, u + 2 * (mid - lo[u])  # pre-order: every subtree is a contiguous id range
         count += 2
         left[u], right[u] = a, b
         lo[a], hi[a] = lo[u], mid
@@ -146,7 +147,7 @@ def build_spatial(leaf_slabs, perm, left, right, lo, hi, node_slabs):
                 break
         if mid < 0:
             mid = a0 + (n + 1) // 2  # index split: guarantees termination
-        a, b = count, count + 1
+        a, b = u + 1, u + 2 * (mid - a0)  # pre-order: every subtree is a contiguous id range
         count += 2
         left[u], right[u] = a, b
         lo[a], hi[a] = a0, mid
@@ -177,31 +178,6 @@ def refit_leaves(kind, dirs, nodes, seg_start, radius, perm, leaf_node, bv):
             sphere_from_capsule(ax, ay, az, bx, by, bz, radius[s], bv, u)
         else:
             obb_from_capsule(ax, ay, az, bx, by, bz, radius[s], bv, u)
-
-
-@njit(cache=True)
-def refit_inner_layered(kind, left, right, bv):
-    """Bottom-up MERGE of the two child BVs, children first (Alg. 5 line 6; layered H_TI / H_R refit)."""
-    n_nodes = left.shape[0]
-    w = bv.shape[1]
-    m = w // 2
-    for u in range(n_nodes - 1, -1, -1):
-        a = left[u]
-        if a < 0:
-            continue
-        b = right[u]
-        if kind == 0:
-            for i in range(m):
-                x = bv[a, i]
-                y = bv[b, i]
-                bv[u, i] = x if x < y else y
-                x = bv[a, m + i]
-                y = bv[b, m + i]
-                bv[u, m + i] = x if x > y else y
-        elif kind == 1:
-            sphere_merge(bv, a, b, bv, u)
-        else:
-            obb_merge(bv, a, b, bv, u)
 
 
 @njit(cache=True, parallel=True)
@@ -255,3 +231,80 @@ def refit_inner_wrapped(kind, dirs, nodes, seg_start, radius, perm, left, lo, hi
                     bv[u, c] = out[c]
             else:
                 obb_from_points(pts, pad, bv, u)
+
+
+
+def subtree_partition(left, right, lo, hi, n_parts):
+    """Split the tree into ≤ ``n_parts`` disjoint subtrees (largest first) plus their ancestors.
+
+    Returns (roots (k,) int64, top (t,) int64 ancestors in decreasing id order) for
+    :func:`refit_layered`. Plain Python: touches O(n_parts) nodes.
+    """
+    roots = [0]
+    top = []
+    while len(roots) < n_parts:
+        sizes = [hi[r] - lo[r] for r in roots]
+        j = int(np.argmax(sizes))
+        r = roots[j]
+        if left[r] < 0:
+            break
+        roots.pop(j)
+        top.append(r)
+        roots += [int(left[r]), int(right[r])]
+    return np.array(roots, np.int64), np.array(sorted(top, reverse=True), np.int64)
+
+
+@njit(cache=True, parallel=True)
+def refit_layered(kind, dirs, nodes, seg_start, radius, perm, left, right, lo, hi, roots, top, bv):
+    """Layered refit (Alg. 5): leaf BVs from the capsules, inner BVs = MERGE of the children.
+
+    Each subtree in ``roots`` is swept in reverse pre-order (children before parents) by one thread;
+    then the ancestors ``top`` are merged. Linear in the number of segments.
+    """
+    m = dirs.shape[0]
+    for q in prange(roots.shape[0]):
+        r = roots[q]
+        end = r + 2 * (hi[r] - lo[r]) - 1
+        for u in range(end - 1, r - 1, -1):
+            a = left[u]
+            if a < 0:
+                s = perm[lo[u]]
+                i = seg_start[s]
+                ax, ay, az = nodes[i, 0], nodes[i, 1], nodes[i, 2]
+                bx, by, bz = nodes[i + 1, 0], nodes[i + 1, 1], nodes[i + 1, 2]
+                if kind == 0:
+                    slab_from_capsule(ax, ay, az, bx, by, bz, radius[s], dirs, bv, u)
+                elif kind == 1:
+                    sphere_from_capsule(ax, ay, az, bx, by, bz, radius[s], bv, u)
+                else:
+                    obb_from_capsule(ax, ay, az, bx, by, bz, radius[s], bv, u)
+                continue
+            b = right[u]
+            if kind == 0:
+                for k in range(m):
+                    x = bv[a, k]
+                    y = bv[b, k]
+                    bv[u, k] = x if x < y else y
+                    x = bv[a, m + k]
+                    y = bv[b, m + k]
+                    bv[u, m + k] = x if x > y else y
+            elif kind == 1:
+                sphere_merge(bv, a, b, bv, u)
+            else:
+                obb_merge(bv, a, b, bv, u)
+    for q in range(top.shape[0]):
+        u = top[q]
+        a = left[u]
+        b = right[u]
+        if kind == 0:
+            for k in range(m):
+                x = bv[a, k]
+                y = bv[b, k]
+                bv[u, k] = x if x < y else y
+                x = bv[a, m + k]
+                y = bv[b, m + k]
+                bv[u, m + k] = x if x > y else y
+        elif kind == 1:
+            sphere_merge(bv, a, b, bv, u)
+        else:
+            obb_merge(bv, a, b, bv, u)

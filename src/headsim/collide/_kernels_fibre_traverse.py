@@ -163,12 +163,8 @@ def traverse_pairs(tasks, left, right, lo, hi, perm, bv, kind, m, nodes, seg_sta
                         out_par = _grow2(out_par, cap)
                     out_pairs[n_out, 0] = sa
                     out_pairs[n_out, 1] = sb
-                    if sa == perm[lo[u]]:
-                        out_par[n_out, 0] = s
-                        out_par[n_out, 1] = t
-                    else:
-                        out_par[n_out, 0] = t
-                        out_par[n_out, 1] = s
+                    out_par[n_out, 0] = s
+                    out_par[n_out, 1] = t
                     n_out += 1
                     if first_only:
                         done = True

@@ -15,6 +15,26 @@ from headsim.collide.bvh import ClosestPoints, RayHits
 _BLOCK = 64  # query rows per vectorised block
 
 
+def icosphere(subdivisions: int = 1, radius: float = 1.0):
+    """Closed, outward-wound icosphere: vertices (n, 3) float64, triangles (m, 3) int64."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def random_star_shape(seed: int, subdivisions: int = 1):
+    """A closed, non-self-intersecting test surface: an icosphere with random radii in [0.6, 1.4],
+    rotated and shifted at random (star-shaped about its centre, so the winding stays outward)."""
+    rng = np.random.default_rng(seed)
+    v, t = icosphere(subdivisions)
+    v = v * rng.uniform(0.6, 1.4, size=(len(v), 1))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    if np.linalg.det(q) < 0:
+        q[:, 0] *= -1
+    return v @ q.T + rng.uniform(-1, 1, 3), t
+
+
 def _segment_closest(p, a, b):
     """Closest points on segments a→b to p; p (q, 1, 3), a, b (1, m, 3) → (q, m, 3), param (q, m)."""
     ab = b - a

@@ -87,20 +87,20 @@ def min_chordal_angle(directions: np.ndarray) -> float:
     return float(np.arccos(np.clip(c.max(), 0.0, 1.0)))
 
 
-def _packing_objective(x, n, p):
+def _packing_objective(x, n, beta):
+    """Smooth maximum of the squared line cosines: log Σ_{i≠j} exp(β (n_iᵀn_j)²), and its gradient."""
     v = x.reshape(n, 3)
     norm = np.linalg.norm(v, axis=1)
     u = v / norm[:, None]
     g = u @ u.T
-    c2 = g * g
-    np.fill_diagonal(c2, 0.0)
-    cmax = c2.max()
-    w = (c2 / cmax) ** (p - 1)
-    f = (w * c2 / cmax).sum()
-    # d f / d u_i = sum_j 2 p (c2/cmax)^(p-1) * 2 g_ij u_j / cmax   (symmetric pairs counted twice)
-    coef = 2.0 * p * w * 2.0 * g / cmax
-    gu = coef @ u
-    # project through normalisation u = v/|v|
+    z = beta * g * g
+    np.fill_diagonal(z, -np.inf)
+    zmax = z.max()
+    e = np.exp(z - zmax)
+    total = e.sum()
+    f = zmax + np.log(total)
+    w = e / total
+    gu = (4.0 * beta * w * g) @ u  # d f / d u_i (pairs ij and ji)
     gv = (gu - (gu * u).sum(1, keepdims=True) * u) / norm[:, None]
     return f, gv.ravel()
 
@@ -113,9 +113,9 @@ def _grassmannian_cached(n_lines: int, restarts: int, seed: int) -> bytes:
     best, best_angle = None, -1.0
     for _ in range(restarts):
         v = rng.normal(size=(n_lines, 3))
-        for p in (4.0, 16.0, 64.0, 256.0):
-            res = minimize(_packing_objective, v.ravel(), args=(n_lines, p), jac=True,
-                           method="L-BFGS-B", options={"maxiter": 400})
+        for beta in (10.0, 40.0, 160.0, 640.0, 2560.0):
+            res = minimize(_packing_objective, v.ravel(), args=(n_lines, beta), jac=True,
+                           method="L-BFGS-B", options={"maxiter": 500})
             v = res.x.reshape(n_lines, 3)
             v /= np.linalg.norm(v, axis=1, keepdims=True)
         ang = min_chordal_angle(v)
@@ -135,7 +135,8 @@ def grassmannian_directions(n_lines: int, *, restarts: int = 4, seed: int = 0) -
     """(n_lines, 3) unit directions of lines through the origin spread as far apart as possible.
 
     Maximises the minimum chordal distance ``d_c = √(1 − (n_iᵀn_j)²)`` (Sobottka eq. 7.8, max–min
-    packing in G(3,1)) by minimising ``Σ_{i<j} (n_iᵀn_j)^{2p}`` for growing p with L-BFGS, best of
+    packing in G(3,1)) by minimising the smooth maximum ``log Σ exp(β (n_iᵀn_j)²)`` for growing β
+    with L-BFGS, best of
     ``restarts`` random starts; the result is rotated so that no direction is a coordinate axis
     (as in the thesis, §7.4.4). Deterministic for a given ``seed``; cached.
     """

@@ -113,6 +113,8 @@ def _points_array(points, what: str) -> np.ndarray:
         raise ParameterError(f"{what} must have shape (q, 3), got {p.shape}")
     if not np.isfinite(p).all():
         raise ParameterError(f"{what} contain NaN/inf (first bad row {int(np.argmax(~np.isfinite(p).all(axis=1)))})")
+    if not p.flags.writeable:  # one Numba specialisation only (read-only arrays are another type)
+        p = p.copy()
     return p
 
 
@@ -146,7 +148,7 @@ class TriangleBVH:
     def __init__(self, vertices, triangles, leaf_size: int = 4):
         v = self._vertices_array(vertices)
         try:
-            t = np.ascontiguousarray(triangles, dtype=np.int64)
+            t = np.array(triangles, dtype=np.int64, order="C")  # own copy, writable for the build
         except (TypeError, ValueError) as e:
             raise MeshError(f"triangles cannot be read as int64: {e}") from None
         if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
@@ -293,8 +295,10 @@ class TriangleBVH:
         """Generalized winding number (q,) and on-surface flag (q,) bool of every point.
 
         beta : far-field threshold of the hierarchical evaluation (Barill et al. 2018): a node is
-            expanded to third order (up to the Hessian term) when the point is more than ``beta`` times its bounding radius
-            from its centroid; ``np.inf`` gives the exact sum over all triangles.
+            replaced by its Taylor expansion up to the Hessian term when the point is more than
+            ``beta`` times its bounding radius from its centroid; ``np.inf`` gives the exact sum
+            over all triangles. Measured worst error on the bundled face: 3e-3 (beta = 2),
+            5e-4 (3), 1e-4 (4).
         surface_tolerance : m; a point this close to a triangle is flagged on the surface
             (default 1e-10 × bounding-box diagonal).
         """

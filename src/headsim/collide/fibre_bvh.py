@@ -243,16 +243,19 @@ class FibreBVH:
         leaves = np.nonzero(self.left < 0)[0]
         self.leaf_node = np.empty(self.fibres.n_segments, np.int64)
         self.leaf_node[self.lo[leaves]] = leaves
+        self._roots, self._top = K.subtree_partition(self.left, self.right, self.lo, self.hi, 8 * max(1, self.threads))
+
+    def _refit_layered(self):
+        f = self.fibres
+        K.refit_layered(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm, self.left,
+                        self.right, self.lo, self.hi, self._roots, self._top, self.bvs)
 
     def _fit_all(self):
         f = self.fibres
-        K.refit_leaves(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
-                       self.leaf_node, self.bvs)
+        self._refit_layered()
         if self.wrapped:
             K.refit_inner_wrapped(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
                                   self.left, self.lo, self.hi, self.bvs)
-        else:
-            K.refit_inner_layered(self.kind, self.left, self.right, self.bvs)
 
     def _set_nodes(self, nodes):
         if nodes is None:
@@ -273,13 +276,13 @@ class FibreBVH:
         self._set_nodes(nodes)
         t0 = time.perf_counter()
         f = self.fibres
-        K.refit_leaves(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
-                       self.leaf_node, self.bvs)
         if self.wrapped and self.hierarchy == "topological":
+            K.refit_leaves(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
+                           self.leaf_node, self.bvs)
             K.refit_inner_wrapped(self.kind, self._dirs, self.nodes, f.segment_start, f.radius, self.perm,
                                   self.left, self.lo, self.hi, self.bvs)
         else:
-            K.refit_inner_layered(self.kind, self.left, self.right, self.bvs)
+            self._refit_layered()
         dt = time.perf_counter() - t0
         self.timings["update"] = dt
         self._steps_since_rebuild += 1

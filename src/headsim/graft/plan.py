@@ -19,7 +19,8 @@ from headsim.graft.region import ClosedRegion, FaceRegion, close_region
 from headsim.mesh.surface import SurfaceMesh
 from headsim.solvers.pbd import STANDARD_GRAVITY, PBDModel, PBDOptions, PBDSolver, PBDState, SolveInfo
 
-__all__ = ["GraftOptions", "GraftSetup", "GraftResult", "prepare_graft", "inject_volume", "graft_pbd_options"]
+__all__ = ["GraftOptions", "GraftSetup", "GraftResult", "prepare_graft", "inject_volume", "graft_pbd_options",
+           "graft_problem", "warm_start_positions"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,9 @@ class GraftOptions:
     stop_tolerance : m per particle (Monkin §4.4 stop rule); max_steps : step budget
     stabilisation_iterations : projections without velocity update first (Monkin §4.4)
     require_convergence : raise ConvergenceError when max_steps is reached before the stop rule holds
+    parallel : Numba-parallel kernels (a gain only with free cores)
+    warm_start : start PBD from a bulge of the right volume (:func:`warm_start_positions`) instead of the
+        flat region; the equilibrium is the same, far fewer steps are needed on dense regions
     """
 
     areal_density: float = 10.0
@@ -61,6 +65,7 @@ class GraftOptions:
     stabilisation_iterations: int = 0
     require_convergence: bool = True
     parallel: bool = False
+    warm_start: bool = True
 
     def __post_init__(self):
         if not (self.areal_density > 0 and math.isfinite(self.areal_density)):
@@ -176,11 +181,63 @@ def _pbd_model(setup: GraftSetup, options: GraftOptions, target: float) -> PBDMo
     surf = c.triangles[c.surface_triangles]
     mass_total = options.areal_density * setup.area_before
     base = PBDModel.from_surface(c.vertices, surf, total_mass=mass_total, fixed=c.fixed)
-    mass = base.mass.copy()
-    mass[mass == 0] = 1.0  # closure vertices outside the region surface: fixed anyway
-    return PBDModel(mass=mass, fixed=c.fixed, edges=base.edges, rest_length=base.rest_length,
+    return PBDModel(mass=base.mass, fixed=c.fixed, edges=base.edges, rest_length=base.rest_length,
                     volume_triangles=c.triangles, volume_body=np.zeros(len(c.triangles), np.int64),
                     volume_target=[target], fluid_density=options.fluid_density)
+
+
+def graft_problem(setup: GraftSetup, volume: float, options: GraftOptions = GraftOptions()
+                  ) -> tuple[PBDModel, PBDOptions]:
+    """The PBD model (closed region, target raised by ``volume`` m³) and options of one injection."""
+    model = _pbd_model(setup, options, setup.volume_before + volume)
+    pbd_options = graft_pbd_options(options)
+    if options.edge_compliance is None:
+        mean_mass = float(model.mass[~model.fixed].mean())
+        pbd_options = replace(pbd_options, edge_compliance=options.spring_softness * options.dt**2 / mean_mass)
+    return model, pbd_options
+
+
+def warm_start_positions(setup: GraftSetup, volume: float) -> np.ndarray:
+    """(k, 3) float64, m: closed-model positions with the region pushed out along its vertex normals by a
+    membrane-like bulge u (cotangent Laplacian: -L u = M 1 inside, u = 0 on the loop), scaled so that
+    the closed model gains ``volume`` m³ (secant iterations on the exact closed volume).
+
+    Only an initial guess for PBD (the seed starts from the flat region): it puts the solve close to the
+    equilibrium so that the number of steps no longer grows with the mesh resolution.
+    """
+    import igl
+    import scipy.sparse.linalg as spla
+
+    closed = setup.closed
+    surf = closed.triangles[closed.surface_triangles]
+    v = closed.vertices
+    used = np.unique(surf)
+    free = used[~closed.fixed[used]]
+    lap = igl.cotmatrix(v, surf).tocsr()  # rows up to the largest index used by ``surf``
+    mass = np.zeros(len(v))
+    diag = igl.massmatrix(v, surf, igl.MASSMATRIX_TYPE_VORONOI).diagonal()
+    mass[:len(diag)] = diag
+    u = np.zeros(len(v))
+    u[free] = spla.spsolve((-lap[free][:, free]).tocsc(), mass[free])
+    from headsim.mesh import geometry
+
+    normals = geometry.vertex_normals(v, surf)
+    direction = u[:, None] * normals
+    target = setup.volume_before + volume
+
+    def excess(scale):
+        return closed.volume_on(v + scale * direction) - target
+
+    # secant on the (cubic) volume, from the linear estimate
+    linear = float(np.sum(mass * u * np.einsum("ij,ij->i", normals, normals)))
+    s0, s1 = 0.0, volume / max(linear, 1e-30)
+    f0, f1 = excess(s0), excess(s1)
+    for _ in range(30):
+        if abs(f1) <= 1e-12 * max(volume, 1e-30) or f1 == f0:
+            break
+        s0, s1, f0 = s1, s1 - f1 * (s1 - s0) / (f1 - f0), f1
+        f1 = excess(s1)
+    return v + s1 * direction
 
 
 def inject_volume(setup: GraftSetup, volume: float, options: GraftOptions = GraftOptions(), *,
@@ -210,13 +267,10 @@ def inject_volume(setup: GraftSetup, volume: float, options: GraftOptions = Graf
         raise ParameterError(
             f"{volume * 1e6:.3g} cm³ is implausibly large for a region of {setup.area_before * 1e4:.3g} cm² "
             f"(limit {limit * 1e6:.3g} cm³); check the volume's unit (cm³) and the mesh's unit")
-    model = _pbd_model(setup, options, setup.volume_before + volume)
-    pbd_options = graft_pbd_options(options)
-    if options.edge_compliance is None:
-        mean_mass = float(model.mass[~model.fixed].mean())
-        pbd_options = replace(pbd_options, edge_compliance=options.spring_softness * options.dt**2 / mean_mass)
+    model, pbd_options = graft_problem(setup, volume, options)
     solver = PBDSolver(model, pbd_options)
-    state, info = solver.solve(PBDState.at_rest(setup.closed.vertices), callback=callback, cancel=cancel)
+    start = warm_start_positions(setup, volume) if options.warm_start else setup.closed.vertices
+    state, info = solver.solve(PBDState.at_rest(start), callback=callback, cancel=cancel)
     if info.cancelled:
         return None
     if not info.converged and options.require_convergence:

@@ -264,8 +264,6 @@ def region_from_loop(mesh: SurfaceMesh, loop: np.ndarray, *, markers: Markers | 
     n_comp, label = csg.connected_components(adj, directed=False)
     if n_comp < 2:
         raise RegionError(f"markers {name!r}: the loop does not separate the surface; the loop is open")
-    counts = np.bincount(ks, minlength=0)  # unused; kept for clarity of intent
-    del counts
     uniq, n_face = np.unique(ks, return_counts=True)
     boundary_keys = uniq[n_face == 1]
     boundary_tris = ts[np.isin(ks, boundary_keys)]

@@ -18,7 +18,7 @@ from headsim.mask.masks import (
     make_mask,
     mask_catalogue,
 )
-from headsim.mask.placement import Placement, airway_point, gaps_along, place_mask
+from headsim.mask.placement import Placement, airway_point, gaps_along, place_mask, skin_cushion_gap
 from headsim.mask.pressure import (
     CAPILLARY_CLOSING_PA,
     CMH2O,
@@ -37,7 +37,7 @@ __all__ = [
     "MaskModel", "MaskDesign", "CushionMaterial", "CUSHION_SILICONE", "SILICONE_MEMBRANE",
     "effective_cushion_modulus", "build_parametric_mask", "make_mask", "mask_catalogue",
     "load_user_mask", "extrude_shell", "mask_from_tetmesh",
-    "Placement", "place_mask", "airway_point", "gaps_along",
+    "Placement", "place_mask", "airway_point", "gaps_along", "skin_cushion_gap",
     "SealResult", "LeakPath", "analyse_seal", "airway_vertices", "outer_boundary",
     "PressureSummary", "contact_pressure", "vertex_contact_pressure", "summarize_pressure",
     "CAPILLARY_CLOSING_PA", "THERAPY_PRESSURE_PA", "MMHG", "CMH2O",

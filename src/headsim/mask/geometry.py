@@ -32,7 +32,7 @@ _PRISM_ROTATIONS = np.array([
 ], dtype=np.int64)
 
 
-def split_prisms(prisms: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+def split_prisms(prisms: np.ndarray, vertices: np.ndarray, orient: bool = True) -> np.ndarray:
     """Split triangular prisms into three tetrahedra each, conformingly and positively oriented.
 
     Parameters
@@ -40,6 +40,8 @@ def split_prisms(prisms: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     prisms : (p, 6) int64 global vertex ids: bottom triangle (0, 1, 2), top (3, 4, 5) with vertex
         ``k + 3`` above vertex ``k``.
     vertices : (n, 3) float64, m (only used to orient each tet positively)
+    orient : swap two vertices of every negatively oriented tet (False: keep the split's own
+        vertex order, whose orientation follows the prism's, to detect folded prisms)
 
     Returns
     -------
@@ -58,6 +60,8 @@ def split_prisms(prisms: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     t_b = np.where(diag15[:, None], q[:, [0, 1, 5, 4]], q[:, [0, 4, 2, 5]])
     t_c = q[:, [0, 4, 5, 3]]
     tets = np.stack([t_a, t_b, t_c], axis=1).reshape(-1, 4)
+    if not orient:
+        return tets
     vol = tet_signed_volumes(vertices, tets)
     flip = vol < 0
     tets[flip] = tets[flip][:, [0, 2, 1, 3]]

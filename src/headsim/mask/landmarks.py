@@ -1,6 +1,6 @@
 """Facial landmarks found from geometry alone (any face scan, not only the ICT topology).
 
-The face's frame and six soft-tissue landmarks are found from the surface, with no template:
+The face's frame and seven soft-tissue landmarks are found from the surface, with no template:
 
 1. **forward** (approach axis, out of the face): the area-weighted mean triangle normal
    ``sum_k A_k n_k / |sum_k A_k n_k|`` (a face is an open, outward-facing surface; a closed or
@@ -14,13 +14,16 @@ The face's frame and six soft-tissue landmarks are found from the surface, with 
    the symmetry plane.
 3. **up**: the symmetry-plane direction normal to ``forward``; its sign follows the rule that the
    nose is longer above the tip than below it: the first concavity of the midline profile above the
-   tip (nasion, 35–55 mm) is farther from the tip than the first one below it (subnasale, 10–25 mm).
+   tip (nasion; 30–39 mm above the tip on the bundled faces) is farther from the tip than the first
+   one below it (subnasale; 11–20 mm below).
    An ``up`` (or ``forward``) given by the caller replaces the estimate (the other axis is
    orthogonalised against it); pass both for scans that are not roughly frontal.
 
 Landmarks come from the **midline profile** — the section of the surface by the symmetry plane,
 reduced to its anterior envelope ``a(u)`` (the most anterior surface point per 0.5 mm band of height
-``u``, Gaussian-smoothed with σ = 1 mm):
+``u``, Gaussian-smoothed with σ = 1 mm; points more than 90 mm behind the most anterior one — the back
+of a whole-head scan — are ignored, and bands without a point, e.g. across an open mouth, are
+interpolated):
 
 - nose tip (pronasale): the most anterior point of the nose — of the peaks of ``a(u)`` (prominence
   ≥ 1 mm, within 25 mm of the most anterior one), the one with the steepest lateral walls 4 mm above
@@ -48,9 +51,11 @@ Farkas, L. G. (1994). *Anthropometry of the Head and Face*, 2nd ed. — landmark
 
 Notes
 -----
-Limitations: the face must be roughly frontal-facing (the mean normal is the approach axis) with the
-nose the most anterior feature within its central part; strongly rotated partial scans need explicit
-``forward``/``up``. The nose's mirror symmetry is assumed (a strongly deviated nose shifts the
+Limitations: the face must be roughly frontal-facing (its mean normal is taken as the approach axis;
+on the bundled ICT faces it tilts 2–14° downwards from +z because the forehead slopes back) and the
+nose tip must lie within 25 mm of the most anterior point of the midline profile; strongly rotated
+or partial scans need explicit ``forward``/``up``. The scan must reach ≥ 40 mm below the subnasale
+(mouth and chin) and above the nasion concavity. The nose's mirror symmetry is assumed (a strongly deviated nose shifts the
 midline). Landmarks are surface points, not vertex ids; :attr:`Landmarks.nearest_vertices` maps
 them to the closest vertices.
 """
@@ -60,8 +65,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
-from scipy.signal import find_peaks
 from scipy.spatial import cKDTree
 
 from headsim.errors import MeshError, ParameterError
@@ -72,6 +75,7 @@ FACE_EXTENT_RANGE_M = (0.08, 0.45)
 
 _BIN = 0.5e-3  # profile band width, m
 _SMOOTH = 1.0e-3  # profile smoothing sigma, m
+_PROFILE_DEPTH = 0.09  # section points more than this behind the most anterior one are ignored, m
 
 LANDMARK_NAMES = ("nose_tip", "nasion", "subnasale", "stomion", "chin", "ala_left", "ala_right")
 
@@ -204,6 +208,13 @@ def plane_section_points(vertices: np.ndarray, triangles: np.ndarray, point: np.
     return seg[owner, 0] + t[:, None] * (seg[owner, 1] - seg[owner, 0])
 
 
+def _smooth(values: np.ndarray, sigma_bins: float) -> np.ndarray:
+    """Gaussian smoothing (scipy.ndimage, imported lazily: it is slow to import)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    return gaussian_filter1d(values, sigma_bins, mode="nearest")
+
+
 def _unit(v: np.ndarray, what: str) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     if v.shape != (3,) or not np.isfinite(v).all():
@@ -221,8 +232,8 @@ def _mean_normal(face: SurfaceMesh) -> np.ndarray:
         raise MeshError(
             f"{face.name}: does not look like a face scan — its triangles face no common direction "
             f"(|area-weighted mean normal| = {ratio:.2f} of the area; a frontal face scan gives 0.3–0.7). "
-            "Closed surfaces (e.g. a sphere or a whole closed head) are not faces; pass forward=/up= "
-            "only for open face surfaces."
+            "A closed surface (e.g. a sphere) is not a face; for a whole-head scan pass forward= "
+            "(out of the face) explicitly."
         )
     return s / np.linalg.norm(s)
 
@@ -279,6 +290,8 @@ class _Profile:
     """Anterior envelope a(u) of a set of section points: u along ``axis``, a along ``forward``."""
 
     def __init__(self, points: np.ndarray, axis: np.ndarray, forward: np.ndarray, origin: np.ndarray):
+        a_all = (points - origin) @ forward
+        points = points[a_all >= a_all.max() - _PROFILE_DEPTH]   # the face, not the back of a head
         u = (points - origin) @ axis
         a = (points - origin) @ forward
         lo, hi = np.floor(u.min() / _BIN), np.ceil(u.max() / _BIN)
@@ -291,7 +304,7 @@ class _Profile:
         arg[k[order]] = order
         filled = np.isfinite(env)
         self.raw = np.interp(self.u, self.u[filled], env[filled])
-        self.a = gaussian_filter1d(self.raw, _SMOOTH / _BIN, mode="nearest")
+        self.a = _smooth(self.raw, _SMOOTH / _BIN)
         # nearest filled band for every band, for point lookup
         idx_filled = np.flatnonzero(filled)
         pos = np.searchsorted(idx_filled, np.arange(len(self.u))).clip(0, len(idx_filled) - 1)
@@ -353,22 +366,6 @@ def _estimate_frame(face: SurfaceMesh, forward, up) -> tuple[np.ndarray, np.ndar
     return f, np.cross(f, lat), lat, c, False
 
 
-def _lateral_drop(face: SurfaceMesh, origin, upv, lat, f, u_c: float, a_c: float) -> float:
-    """How far the surface 20–26 mm to either side falls behind a midline point (mean of both sides), m."""
-    pts = plane_section_points(face.vertices, face.triangles, origin + u_c * upv, upv)
-    if len(pts) == 0:
-        return -np.inf
-    x = (pts - origin) @ lat
-    a = (pts - origin) @ f
-    side_max = []
-    for sign in (+1, -1):
-        sel = (sign * x >= 20e-3) & (sign * x <= 26e-3)
-        if not sel.any():
-            return -np.inf
-        side_max.append(a[sel].max())
-    return float(a_c - np.mean(side_max))
-
-
 def _first_pocket(u: np.ndarray, a: np.ndarray, i_tip: int, direction: int,
                   min_depth: float = 3e-3) -> int | None:
     """Index of the first concavity of the profile walking from the tip along ``direction`` (±1).
@@ -424,6 +421,8 @@ def find_landmarks(face: SurfaceMesh, forward=None, up=None) -> Landmarks:
     prof = _Profile(mid_pts, upv, f, origin)
 
     # --- nose tip: the profile peak with the steepest lateral walls 4 mm above or below it -------
+    from scipy.signal import find_peaks  # scipy.signal takes ~1 s to import; only needed here
+
     peaks, _ = find_peaks(np.concatenate([[-np.inf], prof.a, [-np.inf]]), prominence=1e-3)
     peaks = peaks - 1
     peaks = peaks[prof.a[peaks] >= prof.a.max() - 25e-3]
@@ -534,7 +533,7 @@ def _nose_walls(face: SurfaceMesh, origin, upv, lat, f, level: float):
         filled = np.isfinite(env)
         if filled.sum() < 10:
             return None
-        env = gaussian_filter1d(np.interp(xs, xs[filled], env[filled]), 0.5e-3 / _BIN, mode="nearest")
+        env = _smooth(np.interp(xs, xs[filled], env[filled]), 0.5e-3 / _BIN)
         fall = np.full(len(xs), -np.inf)
         fall[h:-h] = env[:-2 * h] - env[2 * h:]
         fall[(xs < 8e-3) | (xs > 30e-3)] = -np.inf

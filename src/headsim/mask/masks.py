@@ -200,6 +200,11 @@ class MaskModel:
         back = -self.airway_axis
         return np.column_stack([np.cross(self.up, back), self.up, back])
 
+    def with_vertices(self, vertices: np.ndarray) -> "MaskModel":
+        """The same mask with its tet mesh at new positions (e.g. deformed by a fit); the airway
+        frame is kept."""
+        return replace(self, tetmesh=self.tetmesh.with_vertices(vertices))
+
     def transformed(self, rotation: np.ndarray, translation: np.ndarray, name: str | None = None) -> "MaskModel":
         """The mask moved rigidly by ``x -> rotation @ x + translation`` (rotation (3, 3), proper)."""
         r = np.asarray(rotation, dtype=np.float64)

@@ -25,14 +25,17 @@ the face scan), or, as-is, it is nowhere near the face.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from headsim.collide import TriangleBVH
 from headsim.errors import ParameterError
 from headsim.mask.landmarks import Landmarks, find_landmarks
 from headsim.mask.masks import MaskModel
 from headsim.mesh import SurfaceMesh
+
+if TYPE_CHECKING:  # the BVH (Numba kernels) is imported when a placement needs it
+    from headsim.collide import TriangleBVH
 
 #: How far in front of the skin the gap rays start, m.
 _RAY_START = 0.5
@@ -111,7 +114,11 @@ def place_mask(mask: MaskModel, face: SurfaceMesh, landmarks: Landmarks | None =
         raise ParameterError(f"placement must be 'auto' or 'as-is', got {placement!r}")
     if not (np.isfinite(standoff) and 0.0 <= standoff <= 0.1):
         raise ParameterError(f"standoff must be 0–0.1 m, got {standoff}")
-    bvh = face_bvh if face_bvh is not None else TriangleBVH(face.vertices, face.triangles)
+    if face_bvh is None:
+        from headsim.collide import TriangleBVH
+
+        face_bvh = TriangleBVH(face.vertices, face.triangles)
+    bvh = face_bvh
     contact_ids = mask.contact_vertices
 
     if placement == "as-is":
@@ -145,3 +152,23 @@ def place_mask(mask: MaskModel, face: SurfaceMesh, landmarks: Landmarks | None =
     placed = mask.transformed(rotation, translation)
     return Placement(mask=placed, rotation=rotation, translation=translation, approach=approach,
                      target=target, gaps=gaps + shift, mode="auto")
+
+
+def skin_cushion_gap(face: SurfaceMesh, mask: MaskModel, approach: np.ndarray | None = None,
+                     behind: float = 0.05) -> np.ndarray:
+    """(n,) float64, m: gap from every face vertex to the mask's skin-side surface, along the approach.
+
+    For face vertex ``x`` a ray starts ``behind`` (m) inside the face at ``x + behind * approach`` and
+    runs against ``approach`` (out of the face); its first hit ``c`` on the contact surface gives
+    ``gap = (c - x) . (-approach)`` (negative where the cushion overlaps the skin). ``inf`` where no
+    cushion lies on that line. ``approach`` defaults to ``mask.airway_axis``. This is the ``gap``
+    field :func:`headsim.mask.analyse_seal` takes.
+    """
+    d = np.asarray(mask.airway_axis if approach is None else approach, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    from headsim.collide import TriangleBVH
+
+    bvh = TriangleBVH(mask.tetmesh.vertices, mask.contact_triangles)
+    origins = face.vertices + behind * d
+    hits = bvh.intersect_rays(origins, np.broadcast_to(-d, origins.shape).copy())
+    return np.where(hits.hit, hits.distance - behind, np.inf)

@@ -13,7 +13,7 @@ as a set of surface vertex ids (``rigid=np.array([...])``), or as a plane cut
 ``rigid=(point, normal)``: vertices *behind* the plane, ``(x - point) . normal < 0``, are rigid,
 so ``normal`` points from the shell towards the face. For a closed body the mesher remeshes the
 surface, so a vertex set is carried over by proximity: a tet vertex is rigid when its nearest
-surface vertex is.
+surface vertex is in the set and at most 1.5 mean surface edge lengths away.
 
 Mask frame defaults (for ``placement="auto"`` pass them explicitly): ``airway_axis`` = the plane
 normal, or the direction from the rigid vertices' centroid to the cushion vertices' centroid;
@@ -24,7 +24,6 @@ orthogonal to the axis (``+z`` if ``+y`` is parallel to it).
 from __future__ import annotations
 
 import os
-from typing import Sequence
 
 import numpy as np
 
@@ -32,7 +31,7 @@ from headsim.errors import MeshError, ParameterError, RegionError
 from headsim.mask.geometry import split_prisms
 from headsim.mask.masks import CUSHION_SILICONE, CushionMaterial, MaskModel
 from headsim.mesh import REGION_CUSHION, REGION_SHELL, SurfaceMesh, TetMesh, check_head_scale, parse_units
-from headsim.mesh.geometry import vertex_normals
+from headsim.mesh.geometry import tet_signed_volumes, vertex_normals
 
 #: Plausible largest extent of a mask, m.
 MASK_EXTENT_RANGE_M = (0.02, 0.3)
@@ -81,20 +80,18 @@ def extrude_shell(surface: SurfaceMesh, thickness: float, layers: int = 2, direc
     offsets = np.arange(layers + 1) / layers * thickness
     vertices = (v[None, :, :] + offsets[:, None, None] * d[None, :, :]).reshape(-1, 3)
     prisms = np.concatenate([np.concatenate([tri + j * n, tri + (j + 1) * n], axis=1) for j in range(layers)])
-    tets = split_prisms(prisms, vertices)
-    # split_prisms orients every tet positively; a folded offset shows up as a tet whose orientation
-    # disagrees with the prism it came from, i.e. a sign change of the prism volume
-    from headsim.mesh.geometry import tet_signed_volumes
-
-    base = np.concatenate([tri + j * n for j in range(layers)])
-    top = np.concatenate([tri + (j + 1) * n for j in range(layers)])
-    ref = tet_signed_volumes(vertices, np.column_stack([base, top[:, 0]]))
-    sign = np.sign(np.median(ref))
-    if np.any(ref * sign <= 0):
+    raw = split_prisms(prisms, vertices, orient=False)
+    # the three tets of an unfolded prism share the prism's orientation; a folded offset shows up
+    # as tets of the opposite sign (or flat ones)
+    vol = tet_signed_volumes(vertices, raw)
+    sign = np.sign(np.median(vol))
+    bad = vol * sign <= 1e-15 * float(np.ptp(vertices, axis=0).max()) ** 3
+    if sign == 0 or bad.any():
         raise MeshError(
-            f"{surface.name}: the {thickness * 1e3:g} mm wall folds over itself at "
-            f"{int(np.sum(ref * sign <= 0))} triangles (thickness too large for the surface's curvature)"
+            f"{surface.name}: the {thickness * 1e3:g} mm wall folds over itself at {int(bad.sum())} tets "
+            "(thickness too large for the surface's curvature)"
         )
+    tets = raw if sign > 0 else raw[:, [0, 2, 1, 3]]
     return TetMesh(vertices, tets, name=f"{surface.name}[shell {thickness * 1e3:g} mm]")
 
 
@@ -122,8 +119,10 @@ def _rigid_mask(tm_vertices: np.ndarray, rigid, surface: SurfaceMesh, source_ver
         return in_set[source_vertex]
     from scipy.spatial import cKDTree
 
-    _, nearest = cKDTree(surface.vertices).query(tm_vertices)
-    return in_set[nearest]
+    dist, nearest = cKDTree(surface.vertices).query(tm_vertices)
+    e = surface.edges
+    reach = 1.5 * float(np.mean(np.linalg.norm(surface.vertices[e[:, 1]] - surface.vertices[e[:, 0]], axis=1)))
+    return in_set[nearest] & (dist <= reach)
 
 
 def mask_from_tetmesh(tm: TetMesh, rigid_vertices: np.ndarray, name: str, kind: str = "nasal",

@@ -63,7 +63,7 @@ def _finish(vertices: np.ndarray, tets: np.ndarray, name: str) -> TetMesh:
     return TetMesh(v, t, tet_region=np.full(len(t), REGION_TISSUE, dtype=np.int32), name=name)
 
 
-def _tetwild(surface: SurfaceMesh, edge: float, epsilon: float, stop_energy: float,
+def _tetwild(surface: SurfaceMesh, edge: float | None, epsilon: float, stop_energy: float,
              optimize_iterations: int) -> tuple[np.ndarray, np.ndarray]:
     try:
         import pytetwild
@@ -72,7 +72,8 @@ def _tetwild(surface: SurfaceMesh, edge: float, epsilon: float, stop_energy: flo
                            "pip install pytetwild pyvista") from e
     with _LOCK, _in_temp_dir():
         v, t = pytetwild.tetrahedralize(
-            np.array(surface.vertices, dtype=np.float64), np.array(surface.triangles, dtype=np.int32), edge_length_abs=edge, epsilon=epsilon,
+            np.array(surface.vertices, dtype=np.float64), np.array(surface.triangles, dtype=np.int32), edge_length_abs=edge,
+            edge_length_fac=0.05, epsilon=epsilon,
             vtk_ordering=True, quiet=True, num_threads=0, optimize=optimize_iterations > 0,
             stop_energy=stop_energy, num_opt_iter=max(int(optimize_iterations), 1),
         )
@@ -103,6 +104,7 @@ def _gmsh(surface: SurfaceMesh, edge: float) -> tuple[np.ndarray, np.ndarray]:
             gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
             gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
             gmsh.option.setNumber("Mesh.Optimize", 1)
+            gmsh.option.setNumber("Mesh.OptimizeNetgen", 1)
             gmsh.model.mesh.generate(3)
             node_tags, coords, _ = gmsh.model.mesh.getNodes()
             _, elem_nodes = gmsh.model.mesh.getElementsByType(4)
@@ -137,7 +139,10 @@ def tetrahedralize_surface(
     Parameters
     ----------
     surface : closed, consistently oriented surface (validated here; outward normals).
-    target_edge : m, wanted tet edge length; default the mean surface edge length.
+    target_edge : m, wanted tet edge length. Default: tetwild, 1/20 of the bounding-box diagonal
+        (fTetWild's default; the boundary still follows the input within the envelope, only the
+        triangulation is coarser); gmsh, the mean surface edge length (its boundary keeps the input
+        triangles).
     method : ``"tetwild"`` (default, fTetWild via pytetwild) or ``"gmsh"`` (optional GPL extra).
     epsilon : tetwild only: envelope half-width relative to the bounding-box diagonal; the result's
         boundary stays within it of the input surface.
@@ -161,15 +166,15 @@ def tetrahedralize_surface(
         )
     if surface.signed_volume() <= 0:
         raise MeshError(f"{surface.name}: the surface's normals point inwards (negative volume); repair it")
-    edge = _default_edge(surface) if target_edge is None else float(target_edge)
-    if not np.isfinite(edge) or edge <= 0:
+    if target_edge is not None and (not np.isfinite(target_edge) or target_edge <= 0):
         raise ParameterError(f"target_edge must be a positive length in m, got {target_edge}")
+    edge = None if target_edge is None else float(target_edge)
     if method == "tetwild":
         if not 0 < epsilon < 1:
             raise ParameterError(f"epsilon must be in (0, 1), got {epsilon}")
         v, t = _tetwild(surface, edge, epsilon, stop_energy, optimize_iterations)
     else:
-        v, t = _gmsh(surface, edge)
+        v, t = _gmsh(surface, _default_edge(surface) if edge is None else edge)
     if len(t) == 0:
         raise MeshError(f"{surface.name}: the mesher ({method}) produced no tetrahedra")
     return _finish(v, t, name=f"{surface.name}[{method}]")

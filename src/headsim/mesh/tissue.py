@@ -8,16 +8,34 @@ into ``layers`` prisms along smoothed inward vertex normals, and every prism is 
 positively oriented tetrahedra by the global-vertex-index rule (Dompierre et al. 1999), so that
 neighbouring prisms split their shared quad faces along the same diagonal.
 
-Vertex numbering: vertex ``j * n + i`` is face vertex ``i`` (``n`` face vertices) at depth
-``j / layers * thickness[i]``; layer 0 is the skin (same ids as the face mesh), layer ``layers`` is
-the bone surface (``fixed=True``, ``vertex_region == REGION_BONE``).
+Vertex numbering: vertex ``j * n + i`` is skin vertex ``i`` (``n`` skin vertices) at depth
+``j / layers * thickness[i]``; layer 0 is the skin, layer ``layers`` is the bone surface
+(``fixed=True``, ``vertex_region == REGION_BONE``). The skin is the face mesh itself, vertex for
+vertex, unless triangles had to be trimmed (below); ``TissueLayer.face_vertex_ids`` maps skin ids to
+face ids in every case (the identity for the bundled faces, whose trimmed triangles leave no vertex
+unused).
 
-Where the requested thickness does not fit — the skin faces another part of itself closer than
-twice the thickness (eyelids, lips, nostrils), or the surface curves so sharply that the inward
-offset would fold (nose ridge and tip, eye corners) — the local thickness is reduced, with a bounded
-slope so it varies smoothly, and the reduction is reported (:class:`TissueLayer`). If a tet still
-cannot be made positive and well shaped above ``min_thickness_fraction`` of the request, a
-:class:`~headsim.errors.MeshError` names the place.
+Where the requested thickness does not fit, it is reduced locally and the reduction reported
+(:class:`TissueLayer`):
+
+* the skin faces another part of itself (eyelids, lips, nostrils): at most half the distance along
+  the inward direction to the next skin sheet (embree ray casts), and the bone point must stay at
+  least half its thickness away from every skin point (libigl AABB distance);
+* the surface curves so sharply that the inward offset folds (nose ridge and tip, eye corners): the
+  thickness at the vertices of any prism with a flat or inverted tet shrinks by a factor until every
+  tet keeps ``min_volume_ratio`` of its straight-prism volume;
+* the thickness field is then limited to a bounded slope along the skin (a multi-source Dijkstra),
+  so the bone surface stays smooth.
+
+Triangles where no direction field can be extruded at all (the skin folds back on itself by nearly
+180°, as at the inner lips of the mouth corners), or where the thickness would have to fall below
+``min_thickness_fraction`` of the request (eyelid and lip margins), are trimmed from the skin and
+reported; with ``TissueOptions(trim_folds=False)`` a :class:`~headsim.errors.MeshError` names the
+place instead. Every tet is positive (``TetMesh`` refuses anything else).
+
+Limitations: self-intersection of the bone surface is prevented only through the two clearance
+tests above (rays along the inward directions, nearest skin distance of the bone points), not by an
+exact intersection test between distant tets.
 """
 
 from __future__ import annotations
@@ -45,7 +63,8 @@ class TissueOptions:
         within arccos(this) of its own inward normal; triangles that do not (where the skin folds back
         on itself by nearly 180 deg, e.g. the inner lip at the mouth corners) are trimmed when
         ``trim_folds`` is set, otherwise refused.
-    trim_folds : drop such fold triangles (reported) instead of raising MeshError.
+    trim_folds : drop such fold triangles, and those where the tissue would be thinner than
+        ``min_thickness_fraction`` of the request (reported), instead of raising MeshError.
     clearance_fraction : the thickness at a vertex is at most this fraction of the distance along
         its inward direction to the next skin sheet (0.5: two facing sheets share the gap).
     max_thickness_slope : bound on |dh/ds| of the thickness field along the skin (m per m).
@@ -54,9 +73,9 @@ class TissueOptions:
     min_volume_ratio : a tet is accepted when its volume is at least this fraction of
         (top-triangle area x layer depth / 3), the volume it would have in a straight prism.
     reduction_factor : thickness multiplier per repair round at the vertices of rejected prisms.
-    min_thickness_fraction : refuse (MeshError) when the thickness would fall below this fraction of
-        the request somewhere.
-    max_rounds : repair rounds before giving up.
+    min_thickness_fraction : where the thickness would fall below this fraction of the request, the
+        skin triangles there are trimmed (or MeshError when ``trim_folds`` is False).
+    max_rounds : thickness-reduction rounds (and trimming rounds) before giving up.
     """
 
     normal_smoothing: int = 10
@@ -293,21 +312,17 @@ def _sorted_corner_thickness(triangles: np.ndarray, h: np.ndarray) -> np.ndarray
     return h[s[:, ::-1]]
 
 
-def _rejected_faces(x, inward, h, triangles, area, layers, min_ratio, faces):
+def _rejected_faces(pos, tets, triangles, area, h, layers, min_ratio, faces):
     """Bool mask over ``faces`` (ids): prisms with a tet below ``min_ratio`` of its straight-prism
-    volume A h_v / (3 layers) (h_v the thickness at the vertex the tet stands on)."""
-    tri = triangles[faces]
-    n = len(x)
-    local = prism_tets(tri, n, layers)              # ids into the layered positions of all vertices
-    used = np.unique(tri)
-    pos = _layer_positions(x[used], inward[used], h[used], layers)
-    remap = np.empty(n, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    layer, vid = np.divmod(local, n)
-    lt = layer * len(used) + remap[vid]
-    a = pos[lt[:, 0]]
-    vol = np.einsum("ij,ij->i", np.cross(pos[lt[:, 1]] - a, pos[lt[:, 2]] - a), pos[lt[:, 3]] - a) / 6.0
-    ref = area[faces, None] * _sorted_corner_thickness(tri, h) / (3.0 * layers)
+    volume A h_v / (3 layers) (h_v the thickness at the vertex the tet stands on).
+
+    pos : ((layers + 1) n, 3) layered positions; tets : all tets from :func:`prism_tets`."""
+    m = len(triangles)
+    rows = (np.arange(layers)[:, None, None] * 3 * m + 3 * faces[None, :, None] + np.arange(3)[None, None, :])
+    t = tets[rows.ravel()]
+    a = pos[t[:, 0]]
+    vol = np.einsum("ij,ij->i", np.cross(pos[t[:, 1]] - a, pos[t[:, 2]] - a), pos[t[:, 3]] - a) / 6.0
+    ref = area[faces, None] * _sorted_corner_thickness(triangles[faces], h) / (3.0 * layers)
     ratio = vol.reshape(layers, len(faces), 3) / ref[None]
     return (ratio < min_ratio).any(axis=(0, 2))
 
@@ -324,27 +339,21 @@ def _key(face: SurfaceMesh, h: np.ndarray, layers: int, options: TissueOptions) 
     return d.hexdigest()
 
 
-def _extrude_once(face: SurfaceMesh, trimmed: np.ndarray, h_face: np.ndarray, layers: int,
-                  options: TissueOptions, h_start: np.ndarray, by_shape_face: np.ndarray):
-    """One attempt on ``face`` less the ``trimmed`` triangles, starting from thickness ``h_start``
-    (n_face,) m (updated in place, as is ``by_shape_face``, for a warm start of the next attempt).
+def _extrude(face: SurfaceMesh, h_face: np.ndarray, layers: int, options: TissueOptions):
+    """Build the layer in one pass (see the module docstring).
 
-    Returns a tuple (skin, face_vertex_ids, inward, h, positions, tets, by_clearance, by_shape, rounds)
-    on success, or a (m_face,) bool mask of further face triangles to trim (too thin).
+    The inward directions are fixed once the fold triangles are trimmed; after that, trimming a
+    triangle changes no other prism, so the prisms kept at the end passed every test as they are.
+    The ray clearance is cast with the fuller skin, which can only make it smaller (conservative),
+    and removing skin can only move it away from the bone points.
+
+    Returns (skin, face_vertex_ids, inward, h, positions, tets, by_clearance, by_shape, rounds, trimmed)
+    with ``trimmed`` the (m_face,) bool mask of face triangles left out.
     """
-    keep_tri = np.flatnonzero(~trimmed)
-    if len(keep_tri) == 0:
-        raise MeshError(f"{face.name}: no part of the surface can carry the tissue layer")
-    used = np.unique(face.triangles[keep_tri])
-    remap = -np.ones(face.n_vertices, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    base = SurfaceMesh(face.vertices[used], remap[face.triangles[keep_tri]], name=face.name)
-    skin, ids, fold_tris, inward = trim_folds(base, options)
-    if len(fold_tris):
-        out = np.zeros(face.n_triangles, dtype=bool)
-        out[keep_tri[fold_tris]] = True
-        return out
-    face_ids = used[ids]
+    skin, face_ids, fold_tris, inward = trim_folds(face, options)
+    trimmed = np.zeros(face.n_triangles, dtype=bool)
+    trimmed[fold_tris] = True
+    skin_tri_ids = np.flatnonzero(~trimmed)               # face id of each skin triangle
     h_req = h_face[face_ids]
     floor = options.min_thickness_fraction * h_req
     n, m = skin.n_vertices, skin.n_triangles
@@ -352,7 +361,7 @@ def _extrude_once(face: SurfaceMesh, trimmed: np.ndarray, h_face: np.ndarray, la
 
     clearance = skin_clearance(skin, inward)
     by_clearance = options.clearance_fraction * clearance < h_req
-    h = np.minimum(h_start[face_ids], options.clearance_fraction * clearance)
+    h = np.minimum(h_req, options.clearance_fraction * clearance)
     drop = h < floor                      # vertices whose triangles must be trimmed
     h = np.maximum(h, floor)
     edges = skin.edges
@@ -361,14 +370,15 @@ def _extrude_once(face: SurfaceMesh, trimmed: np.ndarray, h_face: np.ndarray, la
 
     tets = prism_tets(skin.triangles, n, layers)
     area = skin.triangle_areas
-    by_shape = by_shape_face[face_ids].copy()
+    by_shape = np.zeros(n, dtype=bool)
     rounds = 0
     check = np.arange(m)                  # faces to (re)check: all, then those whose thickness changed
     bad_faces = np.zeros(m, dtype=bool)
     shallow = np.zeros(n, dtype=bool)
     distance = _SkinDistance(skin)
     while True:
-        bad_faces[check] = _rejected_faces(x, inward, h, skin.triangles, area, layers,
+        pos = _layer_positions(x, inward, h, layers)
+        bad_faces[check] = _rejected_faces(pos, tets, skin.triangles, area, h, layers,
                                            options.min_volume_ratio, check)
         bad_faces &= ~drop[skin.triangles].any(axis=1)
         check_v = np.unique(skin.triangles[check])
@@ -378,12 +388,11 @@ def _extrude_once(face: SurfaceMesh, trimmed: np.ndarray, h_face: np.ndarray, la
         if not bad_faces.any() and not shallow.any():
             break
         rounds += 1
+        if rounds > options.max_rounds:
+            raise MeshError(f"{face.name}: the tissue thickness did not settle in {options.max_rounds} rounds")
         bad_vertices = np.union1d(np.unique(skin.triangles[bad_faces]), np.flatnonzero(shallow))
         stuck = h[bad_vertices] <= floor[bad_vertices] * (1 + 1e-12)
         drop[bad_vertices[stuck]] = True
-        if rounds > options.max_rounds:
-            drop[bad_vertices] = True
-            break
         shrink = bad_vertices[~stuck]
         by_shape[np.intersect1d(shrink, np.unique(skin.triangles[bad_faces]))] = True
         by_clearance[shrink[shallow[shrink]]] = True
@@ -391,12 +400,30 @@ def _extrude_once(face: SurfaceMesh, trimmed: np.ndarray, h_face: np.ndarray, la
         h[shrink] = np.maximum(h[shrink] * options.reduction_factor, floor[shrink])
         h = np.maximum(limit_slope(h, edges, lengths, options.max_thickness_slope), floor)
         check = np.flatnonzero((h != h_old)[skin.triangles].any(axis=1))
+
     if drop.any():
-        h_start[face_ids] = h
-        by_shape_face[face_ids] = by_shape
-        return _triangles_at(face, keep_tri, skin, drop)
-    pos = _layer_positions(x, inward, h, layers)
-    return skin, face_ids, inward, h, pos, tets, by_clearance, by_shape, rounds
+        thin = drop[skin.triangles].any(axis=1)
+        if not options.trim_folds:
+            i = int(skin.triangles[np.argmax(thin), 0])
+            raise MeshError(
+                f"{face.name}: the tissue layer would be thinner than {options.min_thickness_fraction:g} x the "
+                f"requested thickness at {int(thin.sum())} triangles (first near "
+                f"{np.array2string(x[i] * 1e3, precision=1)} mm): the skin faces itself or curves too sharply "
+                "there; allow trimming (trim_folds=True) or smooth the surface"
+            )
+        if thin.all():
+            raise MeshError(f"{face.name}: no part of the surface can carry the tissue layer")
+        trimmed[skin_tri_ids[thin]] = True
+        tri = skin.triangles[~thin]
+        used = np.unique(tri)
+        remap = -np.ones(n, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        skin = SurfaceMesh(x[used], remap[tri], name=face.name)
+        face_ids, inward, h = face_ids[used], inward[used], h[used]
+        by_clearance, by_shape = by_clearance[used], by_shape[used]
+        tets = prism_tets(skin.triangles, skin.n_vertices, layers)
+    pos = _layer_positions(skin.vertices, inward, h, layers)
+    return skin, face_ids, inward, h, pos, tets, by_clearance, by_shape, rounds, trimmed
 
 
 class _SkinDistance:
@@ -419,13 +446,6 @@ class _SkinDistance:
             return np.ones(0)
         d2, _, _ = self.tree.squared_distance(self.v, self.f, np.ascontiguousarray(bone))
         return np.sqrt(d2) / h
-
-
-def _triangles_at(face, keep_tri, skin, vertex_mask):
-    """(m_face,) bool: face triangles (among ``keep_tri``) touching a masked skin vertex."""
-    out = np.zeros(face.n_triangles, dtype=bool)
-    out[keep_tri[vertex_mask[skin.triangles].any(axis=1)]] = True
-    return out
 
 
 def extrude_tissue_layer(
@@ -454,7 +474,8 @@ def extrude_tissue_layer(
     Raises
     ------
     ParameterError : non-positive or non-finite thickness, layers < 1.
-    MeshError : inverted or flat tets that no admissible thickness reduction removes.
+    MeshError : nothing left after trimming, no convergence, or (``trim_folds=False``) a place where
+        the layer cannot be built without trimming.
     """
     n_face = face.n_vertices
     h_req = np.array(np.broadcast_to(np.asarray(thickness, dtype=np.float64), (n_face,))) \
@@ -471,31 +492,11 @@ def extrude_tissue_layer(
         _CACHE.move_to_end(key)
         return _CACHE[key]
 
-    trimmed_mask = np.zeros(face.n_triangles, dtype=bool)
-    h_start = h_req.copy()
-    by_shape_face = np.zeros(n_face, dtype=bool)
-    for _ in range(options.max_rounds):
-        result = _extrude_once(face, trimmed_mask, h_req, layers, options, h_start, by_shape_face)
-        if isinstance(result, tuple):
-            break
-        # ``result`` is a boolean mask of face triangles to trim because they would be too thin
-        if not options.trim_folds:
-            i = int(face.triangles[np.argmax(result), 0])
-            raise MeshError(
-                f"{face.name}: the tissue layer would be thinner than {options.min_thickness_fraction:g} x the "
-                f"requested thickness at {int(result.sum())} triangles (first near "
-                f"{np.array2string(face.vertices[i] * 1e3, precision=1)} mm): the skin faces itself or curves "
-                "too sharply there; allow trimming or smooth the surface"
-            )
-        trimmed_mask |= result
-    else:
-        raise MeshError(f"{face.name}: the tissue layer did not settle in {options.max_rounds} trimming rounds")
-    skin, face_ids, inward, h, pos, tets, by_clearance, by_shape, rounds = result
+    skin, face_ids, inward, h, pos, tets, by_clearance, by_shape, rounds, trimmed_mask = _extrude(
+        face, h_req, layers, options)
     h_req = h_req[face_ids]
     n = skin.n_vertices
     trimmed = np.flatnonzero(trimmed_mask)
-    if len(trimmed) == face.n_triangles:
-        raise MeshError(f"{face.name}: no part of the surface can carry the tissue layer")
     face = skin
     vertex_region = np.full((layers + 1) * n, REGION_TISSUE, dtype=np.int32)
     vertex_region[layers * n:] = REGION_BONE

@@ -162,9 +162,11 @@ class RepairReport:
         ):
             if value:
                 parts.append(text.format(value))
+        text = ", ".join(parts)
         if self.reoriented_components:
-            parts.append(f"({self.reoriented_components} components re-oriented)")
-        return ", ".join(parts)
+            k = self.reoriented_components
+            text += f" ({k} component{'s' if k != 1 else ''} re-oriented)"
+        return text
 
 
 # ----------------------------------------------------------------------------------------------

@@ -189,6 +189,11 @@ class PlaneContact(ContactTerm):
     penalty : kappa, Pa/m
     direction : "consistent" (Heinze eqs. 3.9-3.13) or "naive" (shortest way out)
     slave_edges : (e, 2) int64 springs / tet edges of body A (needed for "consistent")
+    margin : m, an active contact stays active while its gap is below this
+    refresh_planes : recompute the plane of every active contact at each update (default: a contact
+        keeps the plane of its first detection, computed at the smallest penetration, where the
+        consistent direction is best defined; new contacts get fresh planes). Refreshing suits large
+        sliding; keeping makes the outer loop converge (it stops when the active set is stable).
     """
 
     slave_vertices: np.ndarray
@@ -201,6 +206,7 @@ class PlaneContact(ContactTerm):
     slave_edges: np.ndarray | None = None
     axis: np.ndarray | None = None
     margin: float = 0.0
+    refresh_planes: bool = False
     # lagged contact data
     active: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))      # (c,) index into slave_vertices
     tri_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
@@ -319,7 +325,10 @@ class PlaneContact(ContactTerm):
         old_pos = {a: i for i, a in enumerate(self.active.tolist())}
         fresh = inside[new_active] & res.valid[new_active]
         for j, a in enumerate(new_active.tolist()):
-            if fresh[j]:
+            if a in old_pos and not self.refresh_planes:
+                i = old_pos[a]  # lagged plane from the first contact (keeps the solve consistent)
+                tri[j], wts[j], nrm[j] = self.tri_vertices[i], self.weights[i], self.normals[i]
+            elif fresh[j]:
                 tri[j] = self.master_triangles[res.triangle[a]]
                 wts[j] = res.barycentric[a]
                 nrm[j] = res.direction[a]

@@ -134,7 +134,10 @@ def exit_points(positions: np.ndarray, slave_vertices: np.ndarray, master_positi
         cp = tree.closest_points(p[need])
         vec = cp.point - p[need]
         dist = np.linalg.norm(vec, axis=1)
-        r = np.where(dist[:, None] > 1e-300, vec / np.maximum(dist, 1e-300)[:, None],
+        # on (or within round-off of) the surface the direction to the closest point is noise: use the
+        # outward normal of the closest triangle there
+        tiny = 1e-9 * float(np.linalg.norm(np.ptp(np.asarray(master_positions)[np.unique(master_triangles)], axis=0)))
+        r = np.where(dist[:, None] > tiny, vec / np.maximum(dist, 1e-300)[:, None],
                      tree.triangle_normals(cp.triangle))
         depth[need] = dist
         direction[need] = r

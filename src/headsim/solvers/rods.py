@@ -343,7 +343,7 @@ class RodLoads:
         object.__setattr__(self, "gravity", g)
 
 
-_TIP_MODES = {"force": 0, "velocity": 1, "velocity-torque": 2}
+_TIP_MODES = {"force": 0, "velocity": 1, "velocity-torque": 2, "guided-torque": 3}
 
 
 @dataclass(frozen=True, eq=False)
@@ -352,8 +352,10 @@ class RodBoundary:
 
     root_velocity : (F, 3) m/s and root_angular_velocity (F, 3) 1/s (zero: clamped root; else a
     moving support); tip : "force" (free tip or tip force / torque from RodLoads), "velocity"
-    (tip velocity and angular velocity prescribed) or "velocity-torque" (tip velocity prescribed,
-    tip torque from RodLoads); tip_velocity, tip_angular_velocity : (F, 3).
+    (tip velocity and angular velocity prescribed), "velocity-torque" (tip velocity prescribed,
+    tip torque from RodLoads) or "guided-torque" (tip velocity and the transverse components of
+    the tip angular velocity prescribed, the axial component of the tip torque from RodLoads);
+    tip_velocity, tip_angular_velocity : (F, 3).
     """
 
     root_velocity: np.ndarray | None = None

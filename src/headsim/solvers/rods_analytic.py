@@ -48,7 +48,7 @@ def cantilever_tip_load_elastica(P: float, L: float, EI: float) -> tuple[float, 
         a = np.sqrt(sL)
 
         def cosphi(u):
-            return np.sqrt(np.maximum(1.0 - (sL - u * u) ** 2, 0.0))
+            return np.sqrt(np.maximum(1.0 - (sL - u * u) ** 2, 1e-300))
 
         length = integrate.quad(lambda u: 2.0 / (c * cosphi(u)), 0.0, a, epsabs=1e-14, epsrel=1e-13)[0]
         x = 2.0 * a / c

@@ -7,20 +7,29 @@ still sinks somewhat into the cuboid; rigid sphere on soft cuboid -> the cuboid 
 keeps its shape; both soft -> both deform, the cuboid more.
 
 Assumptions where the thesis is silent (stated, not hidden): the Gmsh meshes are replaced by a
-structured cuboid (2 x 0.5 x 2 m, 4 x 1 x 4 cells) and a ball of radius 0.5 m
-(:func:`~headsim.solvers.grids.ball_tetmesh`), metre-sized like Gmsh's default geometry; the cuboid
-stands on a fixed floor (bottom vertices fixed); masses are total / N (eq. 2.1) in kg; the
-collision force is per mass point (F = k_coll d, eq. 3.8) with consistent directions.
+structured cuboid (4R x 2R x 4R, 4 x 2 x 4 cells) and a ball of radius R = 0.5 m
+(:func:`~headsim.solvers.grids.ball_tetmesh`, 125 points), metre-sized like Gmsh's default
+geometry; the cuboid stands on a fixed floor (bottom vertices fixed); masses are total / N (eq. 2.1)
+in kg; gravity 9.81 m/s^2 on both bodies; no dampers (the thesis gives no k_d); the collision force
+is per mass point (F = k_coll d, eq. 3.8) with consistent directions (eqs. 3.9-3.13).
 
-With SI masses (about 4.6 g per sphere point) the seed's explicit Euler at dt = 0.2 s is far beyond
-its stability limit (about 0.01 s here) and diverges on the first contact -- the seed's own
+With SI masses (about 7 g per sphere point) the seed's explicit Euler at dt = 0.2 s is far
+beyond its stability limit (about 0.01 s here) and diverges on the first contact -- the seed's own
 remark that larger steps need smaller spring constants (§3.2). :func:`seed_sphere_on_cuboid`
 therefore reports the state every dt = 0.2 s but integrates with symplectic Euler sub-steps below
 the stability limit (``integrator="substepped"``, the seed's collision force at every sub-step);
 ``integrator="explicit"`` runs the seed-faithful loop (eqs. 3.1-3.13) at the seed's dt, which raises
-DivergenceError. The per-point collision constant makes the contact stiffness grow with the number
-of colliding points (a mesh dependence of the seed's model; headsim's FEM contact uses a pressure
-penalty in Pa/m instead).
+DivergenceError.
+
+What this reproduces and what it does not (10 steps = 2 s): both rigid -- the cuboid keeps its shape
+(shape change 0.5 %) and the sphere sinks into it (and bounces), but the k = 5 N/m sphere does *not*
+keep its shape (about 35 % shape change): its 9 N weight on 5 N/m springs is no rigid body at this
+size; rigid sphere on soft cuboid -- the cuboid deforms (about 40 %) and the sphere much less (5 %),
+as in the thesis, but the 0.2 N/m cuboid is flattened and the sphere passes through it after about
+3 steps; both soft -- both deform (about 35-40 %). The per-point collision constant makes the contact
+stiffness grow with the number of colliding points (a mesh dependence of the seed's model;
+headsim's FEM contact uses a pressure penalty in Pa/m instead). The thesis gives no body sizes or
+units beyond these numbers, so the mismatch cannot be traced further.
 """
 
 from __future__ import annotations
@@ -74,12 +83,16 @@ def rigid_fit_deviation(rest: np.ndarray, current: np.ndarray) -> float:
 
 
 def _sphere_cuboid_bodies(k_sphere: float, k_cuboid: float, sphere_mass: float, cuboid_mass: float,
-                          gap: float, sphere_divisions: int, cuboid_height: float = 1.0, cuboid_divisions=(4, 2, 4)):
-    cub = block_tetmesh((2.0, cuboid_height, 2.0), cuboid_divisions, origin=(-1.0, -cuboid_height, -1.0), name="cuboid")
-    cub = replace(cub, fixed=cub.vertices[:, 1] <= -cuboid_height + 1e-9)
-    sph = ball_tetmesh(0.5, sphere_divisions, center=(0.0, 0.5 + gap, 0.0), name="sphere")
-    ms = mass_spring_from_tetmesh(sph, stiffness=k_sphere, total_mass=sphere_mass, gravity=STANDARD_GRAVITY)
-    mc = mass_spring_from_tetmesh(cub, stiffness=k_cuboid, total_mass=cuboid_mass, gravity=STANDARD_GRAVITY)
+                          radius: float, sphere_divisions: int, damping_ratio: float):
+    """Cuboid 4R x 2R x 4R on a fixed floor (bottom vertices fixed), ball of radius R 2 % of R above it."""
+    h = 2.0 * radius
+    cub = block_tetmesh((4 * radius, h, 4 * radius), (4, 2, 4), origin=(-2 * radius, -h, -2 * radius), name="cuboid")
+    cub = replace(cub, fixed=cub.vertices[:, 1] <= -h + 1e-9 * radius)
+    sph = ball_tetmesh(radius, sphere_divisions, center=(0.0, 1.02 * radius, 0.0), name="sphere")
+    ms = mass_spring_from_tetmesh(sph, stiffness=k_sphere, total_mass=sphere_mass, gravity=STANDARD_GRAVITY,
+                                  damping_ratio=damping_ratio)
+    mc = mass_spring_from_tetmesh(cub, stiffness=k_cuboid, total_mass=cuboid_mass, gravity=STANDARD_GRAVITY,
+                                  damping_ratio=damping_ratio)
     model, off = combine_mass_spring([ms, mc])
     tets = [sph.tets, cub.tets + off[1]]
     surfaces = [sph.boundary_triangles, cub.boundary_triangles + off[1]]
@@ -88,7 +101,8 @@ def _sphere_cuboid_bodies(k_sphere: float, k_cuboid: float, sphere_mass: float, 
 
 def seed_sphere_on_cuboid(scenario: str = "both-rigid", steps: int = 10, dt: float = 0.2, k_coll: float = 1.0,
                           integrator: str = "substepped", sphere_mass: float = 0.917, cuboid_mass: float = 0.1,
-                          gap: float = 0.02, sphere_divisions: int = 2, direction: str = "consistent",
+                          radius: float = 0.5, sphere_divisions: int = 2, damping_ratio: float = 0.0,
+                          direction: str = "consistent",
                           progress: Callable[[int], None] | None = None) -> SceneResult:
     """Run one of the thesis's sphere-on-cuboid scenarios (Heinze §4.2).
 
@@ -105,7 +119,8 @@ def seed_sphere_on_cuboid(scenario: str = "both-rigid", steps: int = 10, dt: flo
     if integrator not in ("substepped", "explicit"):
         raise ParameterError(f"integrator must be 'substepped' or 'explicit', got {integrator!r}")
     ks, kc = SEED_SCENARIOS[scenario]
-    model, off, tets, surfaces = _sphere_cuboid_bodies(ks, kc, sphere_mass, cuboid_mass, gap, sphere_divisions)
+    model, off, tets, surfaces = _sphere_cuboid_bodies(ks, kc, sphere_mass, cuboid_mass, radius, sphere_divisions,
+                                                     damping_ratio)
     state = BodyState.at_rest(model.rest_positions)
     states = [state]
     force = SeedCollisionForce(model.body, surfaces, model.edges, k_coll, 0.0, direction)
@@ -120,7 +135,7 @@ def seed_sphere_on_cuboid(scenario: str = "both-rigid", steps: int = 10, dt: flo
         states.append(replace(state, step=i + 1))
         if progress:
             progress(i + 1)
-    size = [1.0, 2.0]  # sphere diameter, cuboid width, m
+    size = [2.0 * radius, 4.0 * radius]  # sphere diameter, cuboid width, m
     shape = np.array([[rigid_fit_deviation(model.rest_positions[off[b]:off[b + 1]], s.positions[off[b]:off[b + 1]])
                        / size[b] for b in (0, 1)] for s in states])
     pen = []

@@ -15,7 +15,8 @@ Packed parameter vector ``par`` (float64):
   9 alpha_t, 10 beta_t, 11 gamma_t, 12 alpha_s, 13 beta_s, 14 gamma_s,
   15 tolerance (scaled max-norm of the residual), 16 max_iterations, 17 armijo iota,
   18 tip_mode (0: force/torque tip, 1: prescribed tip velocity and angular velocity,
-  2: prescribed tip velocity and tip torque), 19 max_halvings
+  2: prescribed tip velocity and tip torque, 3: prescribed tip velocity, transverse angular
+  velocity (omega1, omega2) and axial torque m3), 19 max_halvings
 Packed boundary vector ``bc`` (float64, global components, held constant over the step):
   0:3 root velocity, 3:6 root angular velocity, 6:9 tip force, 9:12 tip torque,
   12:15 tip velocity, 15:18 tip angular velocity
@@ -498,6 +499,31 @@ def evaluate(x, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
                 if want_jac:
                     r2 = rt + 3 + c
                     band[r2, ct + 3 + c - r2 + KL] = 1.0 / scale[3 + c]
+        elif tip_mode == 3:
+            # guided tip: transverse rotation rates prescribed (omega1, omega2), axial torque m3 prescribed
+            for c in range(3):
+                theta[c] = 0.5 * dt * (x[N, 3 + c] + x_old[N, 3 + c])
+            right_jacobian_into(theta, Jr)
+            for a in range(3):
+                for b in range(3):
+                    Jl[a, b] = 0.5 * dt * Jr[a, b]
+            for c in range(2):
+                wloc = R[N, 0, c] * bc[15] + R[N, 1, c] * bc[16] + R[N, 2, c] * bc[17]
+                F[rt + 3 + c] = (x[N, 3 + c] - wloc) / scale[3 + c]
+                if want_jac:
+                    r2 = rt + 3 + c
+                    band[r2, ct + 3 + c - r2 + KL] = 1.0 / scale[3 + c]
+            mloc3 = np.empty(3)
+            for c in range(3):
+                mloc3[c] = R[N, 0, c] * bc[9] + R[N, 1, c] * bc[10] + R[N, 2, c] * bc[11]
+            F[rt + 5] = (x[N, 8] - k0[N, 2] - mloc3[2] / K[2]) / scale[8]
+            if want_jac:
+                Am3 = np.zeros((3, 3))
+                _add_hat_times(mloc3, Jl, Am3, 0, 0)
+                r2 = rt + 5
+                band[r2, ct + 8 - r2 + KL] = 1.0 / scale[8]
+                for b in range(3):
+                    band[r2, ct + 3 + b - r2 + KL] = -Am3[2, b] / (K[2] * scale[8])
         else:
             for c in range(3):
                 theta[c] = 0.5 * dt * (x[N, 3 + c] + x_old[N, 3 + c])

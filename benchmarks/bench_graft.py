@@ -1,0 +1,141 @@
+"""Benchmark: time for the fat-grafting PBD solve to meet the seed's stop rule (Monkin 2016 ch. 6).
+
+    python benchmarks/bench_graft.py            # ~2,400- and ~9,400-vertex regions
+    python benchmarks/bench_graft.py --quick    # the ~2,400-vertex region only
+
+The seed injected 10 cm³ into a face region of 2,375 vertices (about 5 s, about 300 iterations) and
+into its 1-to-4 subdivision, 8,417 vertices (more than 15 s, more than 600 iterations). Here: a forehead
+region of the bundled face (622 vertices) on the face's 1-to-4 midpoint subdivision (2,398 vertices)
+and 1-to-16 subdivision (9,415 vertices), 10 cm³, springs + volume constraint, no gravity (as the seed's
+density experiment).
+
+Variants: Numba graph-coloured Gauss–Seidel and Numba Jacobi (averaged, ω = 1.5), serial and with
+``parallel=True`` on ``--threads`` threads; baseline: a straightforward NumPy PBD loop (Jacobi with
+np.add.at, the same parameters and stop rule) run in the same process. Numba compilation is excluded
+(every variant is warmed up on the small cheek region first; the first-call compile time is printed).
+Each timing is the best of ``--repeat`` runs. "steps" are PBD steps to the stop rule (each with
+``iterations`` constraint sweeps); "vs numpy" is baseline time / variant time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+
+def _forehead_markers(face):
+    from headsim.collide import TriangleBVH
+    from headsim.graft import Markers
+
+    t = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    xy = np.column_stack([0.056 * np.cos(t), 0.08 + 0.029 * np.sin(t)])
+    origins = np.column_stack([xy, np.full(len(xy), 0.5)])
+    hits = TriangleBVH(face.vertices, face.triangles).intersect_rays(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)))
+    return Markers(points=hits.point, name="forehead")
+
+
+def _regions(quick: bool):
+    from headsim.data import face_path
+    from headsim.graft import region_from_markers, transfer_region_to_midpoint_subdivision
+    from headsim.mesh.io import load_surface
+    from headsim.mesh.subdivide import subdivide_midpoint
+
+    face = load_surface(face_path())
+    coarse = region_from_markers(face, _forehead_markers(face))
+    f1 = subdivide_midpoint(face)
+    r1 = transfer_region_to_midpoint_subdivision(coarse, f1)
+    out = [("forehead, face ×4", r1)]
+    if not quick:
+        f2 = subdivide_midpoint(f1)
+        out.append(("forehead, face ×16", transfer_region_to_midpoint_subdivision(r1, f2)))
+    return face, out
+
+
+def _time(fn, repeat):
+    best, value = np.inf, None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        value = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, value
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="only the ~2,400-vertex region")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--volume-cm3", type=float, default=10.0)
+    args = ap.parse_args(argv)
+
+    import numba
+
+    from headsim.graft import GraftOptions, inject_volume, prepare_graft, region_from_markers, surface_distances
+    from headsim.graft import bundled_markers_path, load_markers
+    from headsim.graft.plan import graft_problem
+    from headsim.solvers._reference_pbd import numpy_pbd_solve
+    from headsim.solvers.pbd import PBDSolver, PBDState
+
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    volume = args.volume_cm3 * 1e-6
+    face, regions = _regions(args.quick)
+
+    variants = {
+        "numba GS (coloured), serial": GraftOptions(method="gauss_seidel"),
+        f"numba GS (coloured), parallel×{args.threads}": GraftOptions(method="gauss_seidel", parallel=True),
+        "numba Jacobi (ω 1.5), serial": GraftOptions(method="jacobi"),
+        f"numba Jacobi (ω 1.5), parallel×{args.threads}": GraftOptions(method="jacobi", parallel=True),
+    }
+    # warm-up (compile) on the small cheek region
+    cheek = region_from_markers(face, load_markers(bundled_markers_path())["left_cheek"])
+    small = prepare_graft(cheek)
+    t0 = time.perf_counter()
+    for opts in variants.values():
+        inject_volume(small, 2e-6, opts)
+    print(f"Numba compile / cache load + warm-up on the cheek: {time.perf_counter() - t0:.2f} s (excluded below)")
+    print(f"threads for parallel variants: {numba.get_num_threads()}; injected volume {args.volume_cm3:g} cm³; "
+          f"best of {args.repeat}\n")
+
+    for label, region in regions:
+        setup = prepare_graft(region)
+        print(f"== {label}: {len(region.vertex_ids)} vertices, {len(region.triangle_ids)} triangles, "
+              f"area {region.area * 1e4:.1f} cm²")
+        results = {}
+        for name, opts in variants.items():
+            model, pbd_opts = graft_problem(setup, volume, opts)
+
+            def run(model=model, pbd_opts=pbd_opts):
+                return PBDSolver(model, pbd_opts).solve(PBDState.at_rest(setup.closed.vertices))
+
+            seconds, (state, info) = _time(run, args.repeat)
+            results[name] = (seconds, info.steps, state.positions, model)
+        # NumPy baseline: same model and parameters, Jacobi (ω 1.5) with np.add.at
+        model, pbd_opts = graft_problem(setup, volume, GraftOptions(method="jacobi"))
+        w = model.inverse_mass
+        base_repeat = 1 if len(region.vertex_ids) > 5000 else args.repeat
+
+        def baseline():
+            return numpy_pbd_solve(setup.closed.vertices, model.edges, model.rest_length, w, model.volume_triangles,
+                                   float(model.volume_target[0]), dt=pbd_opts.dt, iterations=pbd_opts.iterations,
+                                   damping=pbd_opts.damping, edge_compliance=pbd_opts.edge_compliance,
+                                   stop_tolerance=pbd_opts.stop_tolerance, max_steps=pbd_opts.max_steps,
+                                   omega=pbd_opts.jacobi_omega)
+
+        base_s, (base_x, base_steps) = _time(baseline, base_repeat)
+        ref_positions = results["numba GS (coloured), serial"][2]
+        print(f"{'variant':40s} {'steps':>6s} {'time s':>8s} {'ms/step':>8s} {'vs numpy':>9s} {'ΔV/V':>9s} "
+              f"{'max |x - x_GS| mm':>18s}")
+        closed = setup.closed
+        for name, (sec, steps, pos, mdl) in list(results.items()) + [
+                ("numpy Jacobi baseline (same run)", (base_s, base_steps, base_x, model))]:
+            dv = (closed.volume_on(pos) - closed.volume - volume) / volume
+            diff = np.abs(pos - ref_positions).max() * 1e3
+            print(f"{name:40s} {steps:6d} {sec:8.3f} {sec / steps * 1e3:8.3f} {base_s / sec:9.1f} {dv:9.1e} "
+                  f"{diff:18.3f}")
+        print()
+
+
+if __name__ == "__main__":
+    main()

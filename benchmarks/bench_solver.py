@@ -1,0 +1,220 @@
+"""Benchmark of the deformable-body solver (issue 5): seed-faithful explicit loop vs quasi-static Newton.
+
+Run:  python benchmarks/bench_solver.py [--quick]
+
+Problems
+--------
+1. sphere-on-block: rigid sphere pressed onto a soft block (the Hertz problem of
+   ``headsim.solvers.hertz``, quarter model).
+2. two bodies: a soft ball (about 20k tets, FEM / mass-spring) pressed onto a soft block (about 20k tets).
+
+For each problem, in one process:
+- seed-faithful explicit loop: mass-spring bodies, Heinze eqs. 3.1-3.2 (explicit Euler, forces from the
+  old state) with the seed's consistent collision force (eqs. 3.7-3.13, BVH + Möller-Trumbore + BFS)
+  every step. It runs a fixed number of steps; the time to equilibrium is EXTRAPOLATED as
+  (steps needed) x (measured time per step), with steps needed = settling time / dt, dt = 0.9 x the
+  explicit stability limit, settling time = 5 / omega_min (critically damped slowest mode; optimistic
+  for the explicit loop, which the seed ran undamped).
+- quasi-static Newton (``solve_quasi_static``, FEM, penalty contact): measured wall time to equilibrium.
+- implicit Euler (FEM): measured time per step at dt = 0.2 s (the seed's step).
+- linear solvers: sparse direct (SuperLU) vs pyamg smoothed aggregation + CG on the FEM Hessian.
+Ratios are printed against the seed-faithful loop measured in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from headsim.mesh.tet import TetMesh
+from headsim.solvers.contact import PlaneContact, RigidDriver, SphereObstacle, solve_quasi_static, surface_vertex_areas
+from headsim.solvers.contact_consistent import SeedCollisionForce
+from headsim.solvers.fem import fem_from_tetmesh
+from headsim.solvers.grids import ball_tetmesh, block_tetmesh, graded_coordinates, structured_tet_grid
+from headsim.solvers.integrators import ExplicitEuler, ImplicitEuler, critical_time_step
+from headsim.solvers.massspring import combine_mass_spring, mass_spring_from_tetmesh
+from headsim.solvers.materials import Material
+from headsim.solvers.newton import NewtonOptions, rigid_body_modes, solve_spd
+from headsim.solvers.contact import QuasiStaticOptions
+from headsim.solvers.state import BodyState
+
+MAT = Material.from_kpa(10.0, 0.3, 1000.0)
+
+
+def _timed(fn, *a, **k):
+    t = time.perf_counter()
+    out = fn(*a, **k)
+    return out, time.perf_counter() - t
+
+
+def omega_min(model) -> float:
+    """Lowest angular frequency of the fixed model (rad/s): smallest eigenvalue of K v = w^2 M v."""
+    free = np.flatnonzero(np.repeat(~model.fixed, 3))
+    k = model.hessian(model.rest_positions).tocsc()[free][:, free]
+    m = np.repeat(model.mass, 3)[free]
+    import scipy.sparse as sp
+
+    vals = spla.eigsh(k, k=1, M=sp.diags(m).tocsc(), sigma=0.0, which="LM", return_eigenvectors=False)
+    return float(np.sqrt(max(vals[0], 1e-300)))
+
+
+def explicit_seed_loop(ms_model, surfaces, n_steps, k_coll):
+    """Time per step (s) of the seed-faithful loop, and the extrapolated time to equilibrium (s)."""
+    force = SeedCollisionForce(ms_model.body, surfaces, ms_model.edges, k_coll, 0.0, "consistent")
+    dt_crit = critical_time_step(ms_model)
+    dt = 0.9 * dt_crit
+    state = BodyState.at_rest(ms_model.rest_positions)
+    solver = ExplicitEuler(max_jump=1e9)
+    state = solver.step(ms_model, state, dt, extra_forces=force)  # warm-up (JIT, BVH build)
+    t = time.perf_counter()
+    for _ in range(n_steps):
+        state = solver.step(ms_model, state, dt, extra_forces=force)
+    per_step = (time.perf_counter() - t) / n_steps
+    w = omega_min(ms_model)
+    steps_needed = (5.0 / w) / dt
+    return per_step, dt, steps_needed, steps_needed * per_step
+
+
+def bench_sphere_on_block(quick: bool):
+    from headsim.solvers.hertz import hertz_indentation
+
+    print("\n== sphere-on-block (rigid sphere on soft block, quarter model) ==")
+    kw = dict(first_cell=1e-3 / (4 if quick else 6), growth=1.25 if quick else 1.2)
+    rows = {}
+    for solver in ("direct", "amg-cg"):
+        res, t = _timed(hertz_indentation, MAT, 0.01, 0.001, linear_solver=solver, **kw)
+        rows[solver] = t
+        print(f"quasi-static Newton [{solver:6s}]: {t:8.3f} s to equilibrium, {res.newton_iterations} Newton its, "
+              f"{res.n_vertices} vertices / {res.n_tets} tets; Hertz errors a {100 * res.contact_radius_error:+.1f} %, "
+              f"delta {100 * res.indentation_error:+.1f} %")
+    # seed-faithful: the same block as a mass-spring body (k from E), the sphere as a second body
+    mesh = TetMesh(res.model.rest_positions, res.model.tets)
+    mesh = replace(mesh, fixed=res.model.fixed)
+    block = mass_spring_from_tetmesh(mesh, material=Material.from_kpa(10.0, 0.25, 1000.0))
+    ball = ball_tetmesh(0.01, 3 if quick else 4, center=(0, 0, 0.01 + 1e-4))
+    sph = mass_spring_from_tetmesh(ball, material=Material.from_kpa(1e4, 0.25, 1000.0))
+    model, off = combine_mass_spring([block, sph])
+    surfaces = [mesh.boundary_triangles, ball.boundary_triangles + off[1]]
+    per_step, dt, steps, t_eq = explicit_seed_loop(model, surfaces, 5 if quick else 20, k_coll=1e3)
+    print(f"seed-faithful explicit loop: {1 / per_step:8.1f} steps/s, dt = {dt:.3g} s (stability limit), "
+          f"{steps:.3g} steps to equilibrium -> {t_eq:.4g} s (extrapolated)")
+    best = min(rows.values())
+    print(f"ratio seed-faithful / quasi-static: {t_eq / best:.3g} x")
+    return t_eq / best
+
+
+def two_body_meshes(quick: bool):
+    d = 5 if quick else 7  # ball: 6 (2d)^3 tets -> 6000 / 16464
+    n = (12, 12, 5) if quick else (20, 20, 8)  # block: 6 nx ny nz tets -> 4320 / 19200
+    r = 0.01
+    ball = ball_tetmesh(r, d, center=(0, 0, r * 1.001))
+    block = block_tetmesh((4 * r, 4 * r, 2 * r), n, origin=(-2 * r, -2 * r, -2 * r))
+    block = replace(block, fixed=np.isclose(block.vertices[:, 2], -2 * r))
+    return ball, block
+
+
+def bench_two_bodies(quick: bool):
+    print("\n== two deformable bodies (ball on block) ==")
+    ball, block = two_body_meshes(quick)
+    n0 = block.n_vertices
+    both = TetMesh(np.vstack([block.vertices, ball.vertices]), np.vstack([block.tets, ball.tets + n0]),
+                   fixed=np.r_[block.fixed, np.zeros(ball.n_vertices, bool)])
+    print(f"block {block.n_tets} tets, ball {ball.n_tets} tets, {both.n_vertices} vertices")
+    fem = fem_from_tetmesh(both, MAT)
+    x = both.vertices
+    load = 0.01  # N, body force on the ball
+    ext = np.zeros_like(x)
+    ball_v = np.arange(n0, len(x))
+    ext[ball_v, 2] = -load * fem.mass[ball_v] / fem.mass[ball_v].sum()
+    fem = replace(fem, external_force=ext)
+    sym = np.column_stack([np.isclose(x[:, 0], 0.0), np.isclose(x[:, 1], 0.0), np.zeros(len(x), bool)])
+    kappa = 300 * MAT.young_modulus / 0.002
+    a_block = surface_vertex_areas(len(x), block.boundary_triangles, x)
+    a_ball = surface_vertex_areas(len(x), ball.boundary_triangles + n0, x)
+    blk_s = np.flatnonzero(a_block > 0)
+    ball_s = np.flatnonzero(a_ball > 0)
+    rows = {}
+    for solver in ("direct", "amg-cg"):
+        contacts = [
+            PlaneContact(ball_s, a_ball[ball_s], block.boundary_triangles, kappa, slave_edges=both.edges, margin=1e-4),
+            PlaneContact(blk_s, a_block[blk_s], ball.boundary_triangles + n0, kappa, slave_edges=both.edges, margin=1e-4),
+        ]
+        opts = QuasiStaticOptions(newton=NewtonOptions(relative_tolerance=1e-8, linear_solver=solver),
+                                  force_tolerance=1e-7 * load)
+        try:
+            res, t = _timed(solve_quasi_static, fem, contacts, fixed_dofs=sym, options=opts)
+        except Exception as e:  # noqa: BLE001 - report and go on
+            print(f"quasi-static Newton [{solver}]: FAILED ({e})")
+            continue
+        rows[solver] = t
+        print(f"quasi-static Newton [{solver:6s}]: {t:8.3f} s to equilibrium, {res.newton_iterations} Newton its, "
+              f"{res.contact_updates} contact updates; support reaction {res.reaction_forces[:, 2].sum():.4g} N "
+              f"(load {load} N)")
+    # implicit Euler steps at the seed's dt
+    contacts = [
+        PlaneContact(ball_s, a_ball[ball_s], block.boundary_triangles, kappa, slave_edges=both.edges, margin=1e-4),
+        PlaneContact(blk_s, a_block[blk_s], ball.boundary_triangles + n0, kappa, slave_edges=both.edges, margin=1e-4),
+    ]
+    fem_d = replace(fem, rayleigh_stiffness=0.01, fixed=fem.fixed | sym.any(axis=1))
+    state = BodyState.at_rest(x)
+    t = time.perf_counter()
+    n_imp = 2 if quick else 3
+    try:
+        for _ in range(n_imp):
+            state = ImplicitEuler().step(fem_d, state, 0.2, terms=contacts)
+        print(f"implicit Euler (FEM, dt = 0.2 s): {n_imp / (time.perf_counter() - t):8.3f} steps/s")
+    except Exception as e:  # noqa: BLE001
+        print(f"implicit Euler: FAILED ({e})")
+    # seed-faithful explicit loop on mass-spring versions of both bodies
+    mb = mass_spring_from_tetmesh(block, material=Material.from_kpa(10.0, 0.25, 1000.0))
+    mball = mass_spring_from_tetmesh(ball, material=Material.from_kpa(10.0, 0.25, 1000.0))
+    ms, off = combine_mass_spring([mb, mball])
+    per_step, dt, steps, t_eq = explicit_seed_loop(ms, [block.boundary_triangles, ball.boundary_triangles + off[1]],
+                                                   3 if quick else 10, k_coll=1.0)
+    print(f"seed-faithful explicit loop: {1 / per_step:8.2f} steps/s, dt = {dt:.3g} s (stability limit), "
+          f"{steps:.3g} steps to equilibrium -> {t_eq:.4g} s (extrapolated)")
+    if rows:
+        best = min(rows.values())
+        print(f"ratio seed-faithful / quasi-static: {t_eq / best:.3g} x")
+        return t_eq / best
+    return float("nan")
+
+
+def bench_linear_solvers(quick: bool):
+    print("\n== linear solve of the FEM Hessian (block, bottom fixed) ==")
+    sizes = [(16, 16, 8)] if quick else [(16, 16, 8), (30, 30, 15), (36, 36, 36)]
+    for n in sizes:
+        mesh = block_tetmesh((0.04, 0.04, 0.04 * n[2] / n[0]), n)
+        mesh = replace(mesh, fixed=np.isclose(mesh.vertices[:, 2], 0.0))
+        m = fem_from_tetmesh(mesh, MAT)
+        free = np.flatnonzero(np.repeat(~m.fixed, 3))
+        a = m.hessian(m.rest_positions).tocsr()[free][:, free]
+        b = np.random.default_rng(0).standard_normal(len(free))
+        out = []
+        for method in ("direct", "amg-cg"):
+            nn = rigid_body_modes(m.rest_positions)[free]
+            try:
+                xs, t = _timed(solve_spd, a, b, method, nn, 1e-8)
+                out.append(f"{method} {t:7.3f} s (residual {np.linalg.norm(a @ xs - b) / np.linalg.norm(b):.1e})")
+            except MemoryError:
+                out.append(f"{method} out of memory")
+        print(f"{len(free):7d} unknowns: " + ", ".join(out))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes (a minute)")
+    args = ap.parse_args()
+    r1 = bench_sphere_on_block(args.quick)
+    r2 = bench_two_bodies(args.quick)
+    bench_linear_solvers(args.quick)
+    print(f"\nsummary: quasi-static is {r1:.3g} x (sphere-on-block) and {r2:.3g} x (two bodies) faster to "
+          "equilibrium than the seed-faithful explicit loop (extrapolated from measured steps)")
+
+
+if __name__ == "__main__":
+    main()
