@@ -144,3 +144,12 @@ def test_with_vertices_and_transformed_keep_labels(masks):
     np.testing.assert_allclose(turned.airway_center, [1.0, 2.0, 3.0])
     with pytest.raises(ParameterError, match="rotation"):
         m.transformed(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
+
+
+def test_describe(masks):
+    d = masks["nasal-M"].describe()
+    assert d["name"] == "nasal-M" and d["size"] == "M" and d["kind"] == "nasal"
+    # outline 50 mm wide plus the 10 mm cushion; 55 mm tall plus the cushion
+    assert d["width_mm"] == pytest.approx(60.0, abs=1.0)
+    assert d["height_mm"] == pytest.approx(65.0, abs=1.5)
+    assert d["n_tets"] == masks["nasal-M"].tetmesh.n_tets

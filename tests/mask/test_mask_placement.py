@@ -72,7 +72,7 @@ def test_a_mask_larger_than_the_face_cannot_be_placed(neutral_face, neutral_land
     from headsim.mask.masks import _DESIGNS
 
     huge = build_parametric_mask(_DESIGNS["oronasal"], scale=2.0, edge_length=5e-3)
-    with pytest.raises(ParameterError, match="larger"):
+    with pytest.raises(ParameterError, match="too large for this face"):
         place_mask(huge, neutral_face, neutral_landmarks, face_bvh=face_bvh)
 
 

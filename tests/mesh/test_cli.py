@@ -76,9 +76,11 @@ def test_validate_repair_writes_fixed_mesh(tmp_path, capsys):
 def test_tetra_open_surface_writes_tissue_model(tmp_path, capsys, make_grid):
     src = save_surface(make_grid(6, 6, spacing=0.01), tmp_path / "patch.obj", units="mm")
     out = tmp_path / "model.msh"
+    png = tmp_path / "thickness.png"
     code, text, _ = run(["mesh", "tetra", str(src), "--units", "mm", "--thickness-mm", "4", "--layers", "2",
-                         "--out", str(out)], capsys)
+                         "--out", str(out), "--png", str(png)], capsys)
     assert code == 0, text
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     mesh = load_tetmesh(out)
     assert mesh.n_tets == 3 * 2 * 72 and mesh.fixed.sum() == 49
     assert mesh.volume == pytest.approx(0.06 * 0.06 * 0.004, rel=1e-9)

@@ -145,6 +145,9 @@ def test_bundled_face(bundled_face):
     skin = layer.skin_surface()
     _check_structure(layer, face_n_boundary_edges=sum(len(lp) for lp in skin.boundary_loops))
     np.testing.assert_array_equal(layer.mesh.vertices[: layer.n_skin], face.vertices[layer.face_vertex_ids])
+    back = layer.skin_id_of_face_vertex(face.n_vertices)
+    np.testing.assert_array_equal(back[layer.face_vertex_ids], np.arange(layer.n_skin))
+    assert (back >= 0).sum() == layer.n_skin > 0.95 * face.n_vertices
     # only small folds (eyelid margins, inner lips) may be trimmed
     assert skin.area > 0.98 * face.area
     h = layer.thickness

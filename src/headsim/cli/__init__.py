@@ -53,6 +53,10 @@ def _register() -> None:
     app.command("compare")(graft_cmd.compare)
     app.command("graft-scene")(graft_cmd.graft_scene)
 
+    from headsim.cli import hair_cmd
+
+    app.add_typer(hair_cmd.app, name="hair")
+
 
 _register()
 

@@ -144,6 +144,7 @@ def tetra_cmd(
     method: str = typer.Option("tetwild", "--method", help="closed surfaces: tetwild (default) or gmsh (optional, GPL)"),
     repair: bool = typer.Option(False, "--repair", help="apply safe surface repairs first"),
     out: Path = typer.Option(None, "--out", help="write the tet mesh (.vtu, .msh, .mesh, .vtk), in metres"),
+    png: Path = typer.Option(None, "--png", help="open faces: write a front-view picture of the tissue thickness"),
 ) -> None:
     """Tetrahedralise FILE and print the model's statistics.
 
@@ -162,10 +163,13 @@ def tetra_cmd(
         from headsim.mesh.io import TET_FORMATS, _format_for
 
         _format_for(out, TET_FORMATS, "tet mesh")  # refuse a bad suffix before the work
+    if png is not None and png.suffix.lower() != ".png":
+        raise ParameterError(f"{png}: --png needs a .png file name")
     path, loaded = _load(file, units, repair)
     surface = loaded.mesh
     con = _console()
     extra: list[tuple[str, str]] = []
+    layer = None
     t0 = time.perf_counter()
     with con.status("tetrahedralising ..."):
         if surface.is_closed:
@@ -214,3 +218,34 @@ def tetra_cmd(
         with atomic_output_file(out) as tmp:
             save_tetmesh(mesh, tmp)
         con.print(f"wrote {out}")
+    if png is not None and layer is not None:
+        from headsim.cli._common import atomic_output_file
+
+        with atomic_output_file(png) as tmp:
+            _thickness_picture(layer, tmp, title=f"{path.name}: tissue thickness")
+        con.print(f"wrote {png}")
+
+
+def _thickness_picture(layer, path: Path, title: str) -> None:
+    """Front view (x right, y up) of the skin coloured by tissue thickness, trimmed parts grey."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    skin = layer.skin_surface()
+    v = skin.vertices * 1e3
+    fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    front = skin.face_normals[:, 2] > -0.2
+    tri = skin.triangles[front]
+    art = ax.tripcolor(v[:, 0], v[:, 1], tri, layer.thickness * 1e3, shading="gouraud", cmap="viridis",
+                       vmin=0.0, vmax=float(np.max(layer.requested_thickness)) * 1e3)
+    fig.colorbar(art, ax=ax, label="tissue thickness to the bone, mm")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, mm")
+    ax.set_ylabel("y, mm")
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

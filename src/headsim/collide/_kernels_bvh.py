@@ -260,7 +260,8 @@ def refit_winding_moments(vertices, sorted_triangles, node_child, node_start, no
     """Far-field expansion data of every node for the fast winding number (Barill et al. 2018).
 
     Outputs, per node: node_center (n_nodes, 3) area-weighted centroid, m; node_radius (n_nodes,)
-    distance from the centre to the farthest box corner, m; node_normal (n_nodes, 3) sum of area
+    radius of a sphere about the centre holding all the node's triangles, m (exact for leaves, the
+    smaller of the box-corner and children's-spheres bounds above); node_normal (n_nodes, 3) sum of area
     vectors N = sum A_t n_t, m^2; node_moment (n_nodes, 3, 3) M_ij = sum A_t n_t,i (x_t - c)_j, m^3;
     node_tensor (n_nodes, 3, 3, 3) T_ijk = sum_t A_t n_t,i (mean over triangle t of (x - c)_j (x - c)_k), m^4,
     with the triangle's own second moment (1/12) sum_v (v - x_t)(v - x_t)^T included (x_t its centroid).
@@ -369,8 +370,28 @@ def refit_winding_moments(vertices, sorted_triangles, node_child, node_start, no
                             node_tensor[node, p, q, k] += (
                                 node_tensor[child, p, q, k] + node_moment[child, p, q] * sv[k]
                                 + node_moment[child, p, k] * sv[q] + node_normal[child, p] * sv[q] * sv[k])
+        # radius: the smaller of the box-corner bound and the children's spheres (a leaf: exact)
         r2 = 0.0
         for k in range(3):
             d = max(abs(node_hi[node, k] - node_center[node, k]), abs(node_center[node, k] - node_lo[node, k]))
             r2 += d * d
-        node_radius[node] = np.sqrt(r2)
+        radius = np.sqrt(r2)
+        if c < 0:
+            exact2 = 0.0
+            for i in range(node_start[node], node_start[node] + node_count[node]):
+                for j in range(3):
+                    x = vertices[sorted_triangles[i, j]]
+                    dx = x[0] - node_center[node, 0]
+                    dy = x[1] - node_center[node, 1]
+                    dz = x[2] - node_center[node, 2]
+                    exact2 = max(exact2, dx * dx + dy * dy + dz * dz)
+            radius = min(radius, np.sqrt(exact2))
+        else:
+            bound = 0.0
+            for child in (c, c + 1):
+                dx = node_center[child, 0] - node_center[node, 0]
+                dy = node_center[child, 1] - node_center[node, 1]
+                dz = node_center[child, 2] - node_center[node, 2]
+                bound = max(bound, np.sqrt(dx * dx + dy * dy + dz * dz) + node_radius[child])
+            radius = min(radius, bound)
+        node_radius[node] = radius

@@ -23,7 +23,8 @@ from headsim.collide._kernels_closest import CHUNK, closest_point_triangle
 
 @njit(cache=True, inline="always")
 def _solid_angle(p0, p1, p2, A, B, C):
-    """Signed solid angle of triangle ABC seen from p (Van Oosterom & Strackee 1983) and det = a·(b×c)."""
+    """Signed solid angle of triangle ABC seen from p (Van Oosterom & Strackee 1983), det = a·(b×c)
+    and la lb + lb lc + lc la (an upper bound of |(B - A) × (C - A)|), with a = A - p etc."""
     ax = A[0] - p0
     ay = A[1] - p1
     az = A[2] - p2
@@ -39,7 +40,7 @@ def _solid_angle(p0, p1, p2, A, B, C):
     det = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
     denom = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (ax * cx + ay * cy + az * cz) * lb
              + (bx * cx + by * cy + bz * cz) * la)
-    return 2.0 * np.arctan2(det, denom), det
+    return 2.0 * np.arctan2(det, denom), det, la * lb + lb * lc + lc * la
 
 
 @njit(cache=True, parallel=True)
@@ -87,16 +88,14 @@ def winding_numbers_bvh(points, tri_coords, node_child, node_start, node_count,
                     # (a · r) with a_k = sum_i T_iik; (b · r) with b_i = sum_j T_ijj; T[r, r, r]
                     br = (rx * (T[0, 0, 0] + T[0, 1, 1] + T[0, 2, 2]) + ry * (T[1, 0, 0] + T[1, 1, 1] + T[1, 2, 2])
                           + rz * (T[2, 0, 0] + T[2, 1, 1] + T[2, 2, 2]))
-                    trrr = 0.0
                     ar = (rx * (T[0, 0, 0] + T[1, 1, 0] + T[2, 2, 0]) + ry * (T[0, 0, 1] + T[1, 1, 1] + T[2, 2, 1])
                           + rz * (T[0, 0, 2] + T[1, 1, 2] + T[2, 2, 2]))
+                    rv = (rx, ry, rz)
+                    trrr = 0.0
                     for ii in range(3):
-                        ri = rx if ii == 0 else (ry if ii == 1 else rz)
-                        inner = 0.0
                         for jj in range(3):
-                            rj = rx if jj == 0 else (ry if jj == 1 else rz)
-                            inner += rj * (T[ii, jj, 0] * rx + T[ii, jj, 1] * ry + T[ii, jj, 2] * rz)
-                        trrr += ri * inner
+                            rij = rv[ii] * rv[jj]
+                            trrr += rij * (T[ii, jj, 0] * rx + T[ii, jj, 1] * ry + T[ii, jj, 2] * rz)
                     inv_r7 = inv_r5 * inv_r * inv_r
                     total += ((node_normal[node, 0] * rx + node_normal[node, 1] * ry + node_normal[node, 2] * rz) * inv_r3
                               + (M[0, 0] + M[1, 1] + M[2, 2]) * inv_r3 - 3.0 * rMr * inv_r5
@@ -108,9 +107,10 @@ def winding_numbers_bvh(points, tri_coords, node_child, node_start, node_count,
                         A = tri_coords[k, 0]
                         B = tri_coords[k, 1]
                         C = tri_coords[k, 2]
-                        omega, det = _solid_angle(p0, p1, p2, A, B, C)
+                        omega, det, nbound = _solid_angle(p0, p1, p2, A, B, C)
                         total += omega
-                        if not on_surface:
+                        # |det| / |n| is the distance from the plane and |n| <= nbound: cheap pre-filter
+                        if not on_surface and det * det <= tol2 * nbound * nbound:
                             e1x = B[0] - A[0]
                             e1y = B[1] - A[1]
                             e1z = B[2] - A[2]

@@ -115,7 +115,7 @@ def _grassmannian_cached(n_lines: int, restarts: int, seed: int) -> bytes:
         v = rng.normal(size=(n_lines, 3))
         for beta in (10.0, 40.0, 160.0, 640.0, 2560.0):
             res = minimize(_packing_objective, v.ravel(), args=(n_lines, beta), jac=True,
-                           method="L-BFGS-B", options={"maxiter": 500})
+                           method="L-BFGS-B", options={"maxiter": 300})
             v = res.x.reshape(n_lines, 3)
             v /= np.linalg.norm(v, axis=1, keepdims=True)
         ang = min_chordal_angle(v)
@@ -131,7 +131,7 @@ def _grassmannian_cached(n_lines: int, restarts: int, seed: int) -> bytes:
     return np.ascontiguousarray(best).tobytes()
 
 
-def grassmannian_directions(n_lines: int, *, restarts: int = 4, seed: int = 0) -> np.ndarray:
+def grassmannian_directions(n_lines: int, *, restarts: int | None = None, seed: int = 0) -> np.ndarray:
     """(n_lines, 3) unit directions of lines through the origin spread as far apart as possible.
 
     Maximises the minimum chordal distance ``d_c = √(1 − (n_iᵀn_j)²)`` (Sobottka eq. 7.8, max–min
@@ -142,6 +142,8 @@ def grassmannian_directions(n_lines: int, *, restarts: int = 4, seed: int = 0) -
     """
     if not 3 <= n_lines <= 100:
         raise ParameterError(f"k-DOPs need 3…100 lines (k = 6…200), got {n_lines}")
+    if restarts is None:
+        restarts = 4 if n_lines <= 16 else 1
     buf = _grassmannian_cached(int(n_lines), int(restarts), int(seed))
     return np.frombuffer(buf, dtype=np.float64).reshape(n_lines, 3).copy()
 

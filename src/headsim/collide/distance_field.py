@@ -218,8 +218,8 @@ class GridDistanceField(DistanceField):
 def mesh_distance_field(mesh, spacing: float, band: float | None = None, **kw) -> GridDistanceField:
     """Narrow-band field of a ``SurfaceMesh`` (or any object with ``vertices`` and ``triangles``/``faces``)."""
     tri = getattr(mesh, "triangles", None)
-    if tri is None:
-        tri = mesh.faces
+    if tri is None or np.asarray(tri).ndim != 2 or not np.issubdtype(np.asarray(tri).dtype, np.integer):
+        tri = mesh.faces  # trimesh: ``triangles`` are coordinates, ``faces`` the indices
     return GridDistanceField.from_mesh(mesh.vertices, tri, spacing, band, **kw)
 
 

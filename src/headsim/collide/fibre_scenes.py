@@ -181,7 +181,7 @@ def scalp_roots(vertices, triangles, n_roots: int | None = None, *, density: flo
 
 def head_scene(n_fibres: int | None = 49_000, segments_per_fibre: int = 49, *, length: float = 0.12,
                radius: float = 35e-6, density: float = ROOT_DENSITY, gravity: float = 0.25,
-               noise: float = 0.15, layer_thickness: float = 0.012, field=None, seed: int = 0) -> FibreSet:
+               noise: float = 0.15, layer_thickness: float = 0.04, field=None, seed: int = 0) -> FibreSet:
     """Full-head hair (Charming stand-in: 49 k fibres, 2.4 M segments at 325 roots/cm²).
 
     Roots from :func:`scalp_roots` on the bundled head; each fibre starts along the skin normal and

@@ -75,6 +75,7 @@ def run_box_scene(n_particles: int = 8000, steps: int | None = None, *, radius: 
         "particles_inside_box": int(inside.sum()),
         "kinetic_energy_J": float(0.5 * mass * np.sum(state.velocities ** 2)),
         "pile_height_m": float(p[:, 1].max() + radius),
+        "start_height_m": float(start[:, 1].max() + radius),
     }
     return SceneResult("box", p, np.zeros((0, 3), np.int64), numbers, radius)
 

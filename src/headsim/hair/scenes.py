@@ -173,7 +173,7 @@ def loop(n_segments: int = 60, dt: float = 5e-3, duration: float = 1.5, length: 
                  "straight rod, tip torque 2 pi EI / L: forms a loop (seed fig. 3.17)")
 
 
-def buckling(n_segments: int = 60, dt: float = 2e-3, duration: float = 1.0, length: float = 0.10,
+def buckling(n_segments: int = 40, dt: float = 4e-3, duration: float = 1.0, length: float = 0.10,
              shortening: float = 0.3) -> Scene:
     """Seed fig. 3.20: the tip moves towards the root along the rod axis at constant speed
     (end-shortening ``shortening`` L over the run) while an axial torque (ramped to 4 pi EI / L over
@@ -223,11 +223,13 @@ def buckling(n_segments: int = 60, dt: float = 2e-3, duration: float = 1.0, leng
 
 
 def strand_stretch(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.0, n_interpolated: int = 180,
-                   stretch: float = 0.3, pull_time: float = 1.0, gravity: bool = True, rho_inf: float = 0.3) -> Scene:
+                   stretch: float = 0.3, pull_time: float = 1.0, gravity: bool = True,
+                   coefficients: GeneralizedAlpha | None = None) -> Scene:
     """Seed fig. 3.21: a 25 cm curly strand (guide fibre with kappa0 = 170 cos(2 pi s / 5 cm) /m, i.e.
     tangent swinging +-77 degrees about the hanging direction, plus ``n_interpolated`` fibres) hangs from its root; the guide's tip is pulled along -z at
     constant speed until the end-to-end distance has grown by ``stretch`` of the initial distance,
-    then released (tip BC back to free)."""
+    then released (tip BC back to free). Default coefficients: the seed's alpha = 0.3, beta = 0,
+    gamma = 0.7 in time (first order, numerically dissipative, so the strand settles), box in s."""
     L = 0.25
     k0 = sinusoidal_curvature(n_segments, L, 170.0, 0.05, component=0, phase=np.pi / 2)
     m = _hair(L, n_segments, natural_curvature=k0, root_direction=(0, 0, -1), root_normal=(1, 0, 0))
@@ -243,7 +245,8 @@ def strand_stretch(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
             return RodLoads(gravity=g), RodBoundary(tip="velocity", tip_velocity=np.array([0.0, 0.0, -v]))
         return RodLoads(gravity=g), RodBoundary()
 
-    opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(rho_inf, 1.0))
+    coefficients = coefficients or GeneralizedAlpha(0.3, 0.0, 0.7, 0.5, 0.5, 0.5)
+    opts = RodSolverOptions(coefficients=coefficients)
     strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
     return Scene("strand-stretch", m, st, opts, dt, duration, schedule,
                  f"curly 25 cm strand stretched by {stretch:.0%} and released (seed fig. 3.21)", strand)

@@ -32,9 +32,11 @@ interpolated):
   upper lip is more anterior than the nose, so "most anterior point" alone is not enough;
 - nasion and subnasale: the first concavity (pocket below the upper convex hull of the profile,
   ≥ 3 mm deep, at its deepest) walking up from the tip, and walking down from the tip;
-- stomion (mouth): the point deepest below the convex hull of the profile 8–40 mm below the subnasale;
-- chin (pogonion): the most anterior profile point 8–70 mm below the lower lip (the most anterior
-  point 2–18 mm below the stomion) and at most 40 mm behind the subnasale, measured along ``forward``
+- stomion (mouth): the deepest point of ``a(u)`` between the upper and the lower lip, the first two
+  peaks (prominence ≥ 0.2 mm) 3–45 mm below the subnasale (found on every bundled face); failing
+  that, the point deepest below the profile's convex hull 8–30 mm below the subnasale;
+- chin (pogonion): the most anterior profile point 8–70 mm below the lower lip and at most 40 mm
+  behind the subnasale, measured along ``forward``
   tilted 20° downwards (so that a receding chin still yields its most prominent point and the
   under-chin is never chosen);
 - alae (alare, left/right): sections normal to ``up`` at 20 %, 30 % and 40 % of the way from
@@ -462,16 +464,20 @@ def find_landmarks(face: SurfaceMesh, forward=None, up=None) -> Landmarks:
         raise _no_face(face, f"subnasale {1e3 * (tip_u - u[i_sn]):.1f} mm below the nose tip (expected 4–40 mm)")
 
     # --- mouth and chin ---------------------------------------------------------------------------
-    lip = (u >= u[i_sn] - 40e-3) & (u <= u[i_sn] - 8e-3)
-    if lip.sum() < 10:
-        raise _no_face(face, "the surface ends less than 40 mm below the subnasale (no mouth)")
-    lip_idx = np.flatnonzero(lip)
-    i_sto = int(lip_idx[np.argmax(_hull_depth(u[lip_idx], a[lip_idx]))])
+    lip = np.flatnonzero((u >= u[i_sn] - 45e-3) & (u <= u[i_sn] - 3e-3))[::-1]   # walking down
+    if len(lip) < 20:
+        raise _no_face(face, "the surface ends less than 45 mm below the subnasale (no mouth)")
+    lip_peaks, _ = find_peaks(a[lip], prominence=0.2e-3)
+    if len(lip_peaks) >= 2:  # upper and lower lip: the mouth is the deepest point between them
+        i_ls, i_li = int(lip[lip_peaks[0]]), int(lip[lip_peaks[1]])
+        between = np.arange(i_li, i_ls + 1)
+        i_sto = int(between[np.argmin(a[between])])
+    else:  # lips not separated in the profile: the deepest point below its hull, 8-30 mm down
+        window = np.flatnonzero((u >= u[i_sn] - 30e-3) & (u <= u[i_sn] - 8e-3))
+        i_sto = int(window[np.argmax(_hull_depth(u[window], a[window]))])
+        lower_lip = np.flatnonzero((u >= u[i_sto] - 18e-3) & (u <= u[i_sto] - 2e-3))
+        i_li = int(lower_lip[np.argmax(a[lower_lip])])
     beta = np.deg2rad(_CHIN_TILT_DEG)
-    lower_lip = np.flatnonzero((u >= u[i_sto] - 18e-3) & (u <= u[i_sto] - 2e-3))
-    if len(lower_lip) == 0:
-        raise _no_face(face, "no lower lip below the mouth in the midline profile")
-    i_li = int(lower_lip[np.argmax(a[lower_lip])])
     low = (u <= u[i_li] - 8e-3) & (u >= u[i_li] - 70e-3) & (a >= a[i_sn] - 40e-3)
     if low.sum() < 10:
         raise _no_face(face, "no chin below the mouth in the midline profile")

@@ -10,7 +10,8 @@ Mask frame (metres): origin at the centre of the airway opening, ``+x`` the wear
 Parametric design (all lengths for size M; S and L scale the whole mask by 0.9 and 1.1):
 
 - **Outline** (the cushion's centre line seen from the front): a teardrop, narrow at the nasal
-  bridge, ``x(t) = W/2 cos t (1 - k (1 + sin t)/2)``, ``y(t) = y0 + H/2 sin t``, resampled evenly by
+  bridge, ``x(t) ∝ cos t (1 - k (1 + sin t)/2)`` scaled to the largest width ``W``,
+  ``y(t) = y0 + H/2 sin t``, resampled evenly by
   arc length. Nasal: W = 50 mm, H = 55 mm, y0 = 8.5 mm, k = 0.3 (the centre line crosses the nasal
   bridge 36 mm above and the upper lip 19 mm below the airway centre, which sits midway between nose
   tip and subnasale). Oronasal: W = 80 mm, H = 90 mm, y0 = 10 mm, k = 0.45 (bridge 55 mm above,
@@ -200,6 +201,19 @@ class MaskModel:
         back = -self.airway_axis
         return np.column_stack([np.cross(self.up, back), self.up, back])
 
+    def describe(self) -> dict:
+        """Plain numbers for listings and reports (lengths in mm, modulus in kPa)."""
+        ext = np.ptp(self.tetmesh.vertices @ self.frame, axis=0) * 1e3
+        return {
+            "name": self.name, "kind": self.kind, "size": self.size,
+            "width_mm": float(ext[0]), "height_mm": float(ext[1]), "depth_mm": float(ext[2]),
+            "n_vertices": self.tetmesh.n_vertices, "n_tets": self.tetmesh.n_tets,
+            "n_rigid_vertices": int(np.count_nonzero(self.tetmesh.fixed)),
+            "n_contact_triangles": int(len(self.contact_triangles)),
+            "cushion_modulus_kpa": self.material.youngs_modulus / 1e3,
+            "cushion_poisson_ratio": self.material.poisson_ratio,
+        }
+
     def with_vertices(self, vertices: np.ndarray) -> "MaskModel":
         """The same mask with its tet mesh at new positions (e.g. deformed by a fit); the airway
         frame is kept."""
@@ -269,7 +283,8 @@ def _outline(design: MaskDesign, scale: float, n: int) -> tuple[np.ndarray, np.n
     """(n, 2) outline points, (n, 2) outward normals, (n,) skin-side edge z, m (mask frame)."""
     t = np.linspace(0.0, 2.0 * np.pi, 4096, endpoint=False)
     w, h = design.width * scale, design.height * scale
-    x = 0.5 * w * np.cos(t) * (1.0 - design.taper * (1.0 + np.sin(t)) / 2.0)
+    x = np.cos(t) * (1.0 - design.taper * (1.0 + np.sin(t)) / 2.0)
+    x *= 0.5 * w / np.abs(x).max()                     # W is the outline's largest width
     y = design.y_offset * scale + 0.5 * h * np.sin(t)
     pts, tangent = resample_closed_curve(np.column_stack([x, y]), n)
     # counter-clockwise curve: the outward normal is the tangent turned clockwise

@@ -144,8 +144,9 @@ def place_mask(mask: MaskModel, face: SurfaceMesh, landmarks: Landmarks | None =
     if miss.mean() > max_miss_fraction:
         raise ParameterError(
             f"cannot place {mask.name} on {face.name}: {100 * miss.mean():.0f}% of its skin-side vertices "
-            f"have no skin in front of them (allowed {100 * max_miss_fraction:.0f}%); the mask is larger "
-            "than the face scan or the landmarks are wrong"
+            f"have no skin in front of them (allowed {100 * max_miss_fraction:.0f}%): the mask reaches beyond "
+            "the edge of the scan or over its holes (eyes, mouth), i.e. it is too large for this face, "
+            "or the landmarks are wrong"
         )
     shift = standoff - float(np.nanmin(gaps))          # positive: move away from the face
     translation = translation + shift * lm.forward

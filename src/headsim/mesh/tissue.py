@@ -12,8 +12,8 @@ Vertex numbering: vertex ``j * n + i`` is skin vertex ``i`` (``n`` skin vertices
 ``j / layers * thickness[i]``; layer 0 is the skin, layer ``layers`` is the bone surface
 (``fixed=True``, ``vertex_region == REGION_BONE``). The skin is the face mesh itself, vertex for
 vertex, unless triangles had to be trimmed (below); ``TissueLayer.face_vertex_ids`` maps skin ids to
-face ids in every case (the identity for the bundled faces, whose trimmed triangles leave no vertex
-unused).
+face ids in every case (increasing, so the order is kept; for the bundled neutral face about 340 of
+9,409 vertices, at the eyelid and lip margins, are left out).
 
 Where the requested thickness does not fit, it is reduced locally and the reduction reported
 (:class:`TissueLayer`):
@@ -75,7 +75,7 @@ class TissueOptions:
     reduction_factor : thickness multiplier per repair round at the vertices of rejected prisms.
     min_thickness_fraction : where the thickness would fall below this fraction of the request, the
         skin triangles there are trimmed (or MeshError when ``trim_folds`` is False).
-    max_rounds : thickness-reduction rounds (and trimming rounds) before giving up.
+    max_rounds : thickness-reduction rounds before giving up (MeshError).
     """
 
     normal_smoothing: int = 10
@@ -151,6 +151,12 @@ class TissueLayer:
     def reduced(self) -> np.ndarray:
         """(n,) bool, vertices where the thickness is below the request."""
         return self.thickness < self.requested_thickness * (1.0 - 1e-12)
+
+    def skin_id_of_face_vertex(self, n_face_vertices: int) -> np.ndarray:
+        """(n_face,) int64: the tet-mesh (skin) id of each face vertex, -1 where it was trimmed away."""
+        out = -np.ones(int(n_face_vertices), dtype=np.int64)
+        out[self.face_vertex_ids] = np.arange(self.n_skin)
+        return out
 
     def skin_surface(self) -> SurfaceMesh:
         return SurfaceMesh(self.mesh.vertices[: self.n_skin], self.skin_triangles, name=f"{self.mesh.name}[skin]")
@@ -497,18 +503,20 @@ def extrude_tissue_layer(
     h_req = h_req[face_ids]
     n = skin.n_vertices
     trimmed = np.flatnonzero(trimmed_mask)
-    face = skin
     vertex_region = np.full((layers + 1) * n, REGION_TISSUE, dtype=np.int32)
     vertex_region[layers * n:] = REGION_BONE
     mesh = TetMesh(pos, tets, tet_region=np.full(len(tets), REGION_TISSUE, dtype=np.int32),
                    vertex_region=vertex_region, fixed=vertex_region == REGION_BONE,
                    name=f"{face.name}[tissue]")
+    thinner = h < h_req
+    by_clearance = by_clearance & thinner
+    by_shape = by_shape & thinner
     for a in (h, h_req, inward, face_ids, trimmed, by_clearance, by_shape):
-        a.flags.writeable = False
+        a.flags.writeable = False  # the result is cached and shared: immutable
     result = TissueLayer(mesh=mesh, n_skin=n, layers=layers, thickness=h, requested_thickness=h_req,
-                         inward=inward, reduced_by_clearance=by_clearance & (h < h_req),
-                         reduced_by_shape=by_shape & (h < h_req), skin_triangles=skin.triangles,
-                         face_vertex_ids=face_ids, trimmed_triangles=trimmed, rounds=rounds)
+                         inward=inward, reduced_by_clearance=by_clearance, reduced_by_shape=by_shape,
+                         skin_triangles=skin.triangles, face_vertex_ids=face_ids, trimmed_triangles=trimmed,
+                         rounds=rounds)
     if key is not None:
         _CACHE[key] = result
         while len(_CACHE) > _CACHE_SIZE:
@@ -522,5 +530,7 @@ def build_tissue_layer(
     layers: int = 3,
     options: TissueOptions = TissueOptions(),
 ) -> TetMesh:
-    """The tet mesh of :func:`extrude_tissue_layer` (skin = vertices 0..n-1, bone vertices fixed)."""
+    """The tet mesh of :func:`extrude_tissue_layer` (skin = vertices 0..n-1, bone vertices fixed).
+
+    Use :func:`extrude_tissue_layer` for the skin-to-face vertex map and the thickness report."""
     return extrude_tissue_layer(face, thickness, layers, options).mesh

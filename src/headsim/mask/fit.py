@@ -1,0 +1,492 @@
+"""Mask fit: a deformable mask pressed onto a deformable face by the strap force (Heinze ch. 5).
+
+The seed's experiment (Heinze 2023 ch. 5: face fixed at its back, mask 2 cm away, pushed with a
+force along the approach axis) as a quasi-static finite-element contact problem:
+
+- **Face**: the skin surface, cropped to the mask's footprint plus ``crop_margin`` (the skin far
+  from the cushion carries no load; cropping keeps one fit within seconds), extruded into a tissue
+  layer of ``tissue_thickness`` (Heinze §2.3.1: 1 cm, CT-measured mean around the nose) whose deep
+  side is fixed bone (:func:`headsim.mesh.tissue.extrude_tissue_layer`). Material: stable
+  neo-Hookean FEM (:mod:`headsim.solvers.fem`) with an effective homogeneous soft-tissue modulus
+  E = 30 kPa, nu = 0.45. In-vivo facial soft tissue (skin + fat + muscle) is reported in the 10-100
+  kPa range; FE face-respirator studies found that the tissue property changes the peak contact
+  pressure little (Lei, Yang & Zhuang, "Effects of strap location, friction and facial soft tissue
+  property on N95 FFR contact pressure", ASME IDETC-CIE 2015, V01AT02A046). nu = 0.45 (tissue is
+  nearly incompressible; 0.45 keeps linear tets free of volumetric locking).
+- **Mask**: the cushion is an FEM body with the mask's own material (:class:`MaskModel.material`);
+  its rigid shell vertices are tied to one rigid driver u (m) along the approach axis by a stiff
+  spring ``E = k/2 |x_s - X_s - u a|^2`` (:class:`ShellAttachment`; at equilibrium the shell force
+  equals the strap force exactly, whatever k). The driver carries the strap force F (N):
+  force control, the energy gets ``-F u`` (:class:`headsim.solvers.RigidDriver`).
+- **Contact**: skin vertices against the cushion's closed surface with the lagged-plane penalty of
+  :class:`headsim.solvers.PlaneContact` (consistent directions, Heinze eqs. 3.9-3.13), penalty
+  kappa = ``penalty_factor`` x E_soft / h (Pa per m of penetration; h the median skin edge). Contact
+  pressure at a skin vertex = kappa x penetration (Pa), force = pressure x vertex area.
+- **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton + line search, contact active set
+  refreshed in an outer loop). From a cold start the mask is first pushed 1 mm in under
+  displacement control (so that the contact set is not empty), then released to force control. A
+  warm start (:class:`FitState` of an earlier fit on the same :class:`FitProblem`) skips that.
+- **Placement**: the mask is placed as in the seed, 2 cm in front of the skin along the approach
+  axis (:func:`headsim.mask.place_mask`); the quasi-static solve starts from first contact (the
+  mask slid along the axis until its nearest skin-side vertex touches), since the unloaded approach
+  carries no force and does not change a frictionless equilibrium.
+
+Outputs (:class:`FitResult`): total contact force (balances F at equilibrium; checked), contact
+area, per-face-vertex pressure (Pa; kPa in reports), peak and mean pressure, area above the capillary
+closing pressure (32 mmHg, Landis 1930), seal analysis (:func:`headsim.mask.analyse_seal`: contact
+pressure above the therapy pressure forming a closed loop around the airway) with leak paths, and
+the deformed face and mask.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from headsim.errors import ConvergenceError, DivergenceError, HeadsimError, MeshError, ParameterError
+from headsim.mask.landmarks import Landmarks, find_landmarks
+from headsim.mask.masks import MaskModel
+from headsim.mask.placement import Placement, place_mask
+from headsim.mask.pressure import CAPILLARY_CLOSING_PA, THERAPY_PRESSURE_PA, PressureSummary, summarize_pressure
+from headsim.mask.seal import SealResult, airway_vertices, analyse_seal
+from headsim.mesh import SurfaceMesh, TetMesh
+from headsim.mesh.tet import REGION_CUSHION, REGION_SHELL, REGION_TISSUE
+
+#: Largest strap force accepted, N (CPAP/NIV strap tensions are a few to ~30 N; 200 N is absurd).
+MAX_STRAP_FORCE = 200.0
+#: Effective homogeneous facial soft-tissue modulus, Pa (module doc).
+TISSUE_MODULUS = 30e3
+TISSUE_POISSON = 0.45
+TISSUE_DENSITY = 1050.0
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Options of a mask fit (SI units).
+
+    tissue_modulus : Pa, tissue_poisson, tissue_density : kg/m^3 -- the face's FEM material
+    tissue_thickness : m, depth of the tissue layer to the fixed bone (Heinze: 0.01)
+    tissue_layers : tet layers through the thickness (>= 1)
+    crop_margin : m, skin kept around the mask footprint (None: the whole face)
+    penalty_factor : kappa = penalty_factor x E_soft / h (contact stiffness, module doc)
+    therapy_pressure : Pa, the air pressure a seal must hold (default 10 cmH2O)
+    pressure_threshold : Pa, pressure-injury threshold for the "area above" number (32 mmHg)
+    standoff : m, placement distance in front of the face (seed: 0.02), reported
+    placement : "auto" or "as-is"
+    preload : m, displacement-controlled push before force control on a cold start
+    max_contact_updates : outer contact iterations of the quasi-static solve
+    balance_tolerance : relative mismatch of contact force and strap force above which the fit is
+        refused (ConvergenceError)
+    """
+
+    tissue_modulus: float = TISSUE_MODULUS
+    tissue_poisson: float = TISSUE_POISSON
+    tissue_density: float = TISSUE_DENSITY
+    tissue_thickness: float = 0.01
+    tissue_layers: int = 2
+    crop_margin: float | None = 0.012
+    penalty_factor: float = 200.0
+    therapy_pressure: float = THERAPY_PRESSURE_PA
+    pressure_threshold: float = CAPILLARY_CLOSING_PA
+    standoff: float = 0.02
+    placement: str = "auto"
+    preload: float = 1e-3
+    max_contact_updates: int = 30
+    balance_tolerance: float = 0.01
+
+    def __post_init__(self):
+        for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
+                     "therapy_pressure", "pressure_threshold", "preload", "balance_tolerance"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ParameterError(f"{name} must be > 0, got {v}")
+        if not 0.0 < self.tissue_poisson < 0.5:
+            raise ParameterError(f"tissue_poisson must lie in (0, 0.5), got {self.tissue_poisson}")
+        if int(self.tissue_layers) != self.tissue_layers or self.tissue_layers < 1:
+            raise ParameterError(f"tissue_layers must be an integer >= 1, got {self.tissue_layers}")
+        if self.crop_margin is not None and not (np.isfinite(self.crop_margin) and self.crop_margin > 0):
+            raise ParameterError(f"crop_margin must be > 0 m or None, got {self.crop_margin}")
+        if self.placement not in ("auto", "as-is"):
+            raise ParameterError(f"placement must be 'auto' or 'as-is', got {self.placement!r}")
+        if not (np.isfinite(self.standoff) and 0 <= self.standoff <= 0.1):
+            raise ParameterError(f"standoff must be 0-0.1 m, got {self.standoff}")
+
+
+def check_force(force: float) -> float:
+    """The strap force as a float, N; ParameterError unless 0 < force <= MAX_STRAP_FORCE."""
+    f = float(force)
+    if not np.isfinite(f) or f <= 0:
+        raise ParameterError(f"strap force must be > 0 N, got {force}")
+    if f > MAX_STRAP_FORCE:
+        raise ParameterError(f"strap force {f:g} N is absurd (largest accepted: {MAX_STRAP_FORCE:g} N; "
+                             "mask straps carry a few to ~30 N)")
+    return f
+
+
+# ------------------------------------------------------------------------------------------------
+# the rigid shell tied to the strap driver
+# ------------------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class ShellAttachment:
+    """Ties vertices to a rigid translation u along ``axis``: E = k/2 sum |x_s - X_s - u a|^2.
+
+    A :class:`headsim.solvers.contact.ContactTerm` in form (energy, gradient, hessian on (x, u)),
+    so :func:`headsim.solvers.solve_quasi_static` treats it like a contact; it reports no contact
+    force or pressure. vertices : (s,) int64; rest : (s, 3) m; stiffness : k, N/m per vertex;
+    driver : index of the strap driver (axis filled in by the solver).
+    """
+
+    vertices: np.ndarray
+    rest: np.ndarray
+    stiffness: float
+    driver: int = 0
+    axis: np.ndarray | None = None
+
+    def _residual(self, x, u):
+        return x[self.vertices] - self.rest - u[self.driver] * self.axis
+
+    def energy(self, x, u):
+        r = self._residual(x, u)
+        return 0.5 * self.stiffness * float(np.sum(r * r))
+
+    def gradient(self, x, u):
+        r = self.stiffness * self._residual(x, u)
+        gx = np.zeros_like(x)
+        gx[self.vertices] = r
+        gu = np.zeros(len(u))
+        gu[self.driver] = -float(np.sum(r @ self.axis))
+        return gx, gu
+
+    def hessian(self, x, u):
+        n, k = len(x), self.stiffness
+        n_dof = 3 * n + len(u)
+        s = len(self.vertices)
+        dof = (3 * self.vertices[:, None] + np.arange(3)).ravel()
+        ud = 3 * n + self.driver
+        a = np.tile(self.axis, s)
+        rows = np.concatenate([dof, dof, np.full(len(dof), ud), [ud]])
+        cols = np.concatenate([dof, np.full(len(dof), ud), dof, [ud]])
+        vals = np.concatenate([np.full(len(dof), k), -k * a, -k * a, [k * s]])
+        return sp.csr_matrix((vals, (rows, cols)), shape=(n_dof, n_dof))
+
+    def update(self, x, u):
+        return False
+
+    def vertex_forces(self, x, u):
+        return np.zeros_like(x)
+
+    def vertex_pressure(self, x, u):
+        return np.zeros(len(x))
+
+
+# ------------------------------------------------------------------------------------------------
+# problem set-up (once per face x mask), results
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class FitState:
+    """A converged fit to warm-start the next one: positions (n, 3) m of the combined model and the
+    driver translation u (m) along the approach axis; ``force`` N it was solved for."""
+
+    positions: np.ndarray
+    driver: float
+    force: float
+
+
+@dataclass(frozen=True, eq=False)
+class FitProblem:
+    """Everything a fit on one face with one mask needs, built once by :func:`prepare_fit`.
+
+    face : full face SurfaceMesh, m; landmarks; placement (the seed's 2 cm placement);
+    mask : the placed mask moved to first contact (the solve's start); options;
+    crop_face_ids : (c,) int64 face vertex ids of the cropped skin (skin vertex i of the tissue model
+        is face vertex crop_face_ids[i]); n_tissue : vertices of the tissue model (skin first);
+    model : FemModel of tissue (vertices 0..n_tissue-1) + mask (n_tissue..);
+    skin_vertices : (k,) int64 model ids of the skin; skin_areas : (k,) m^2;
+    mask_surface : (t, 3) int64 model ids of the mask's closed boundary;
+    shell_vertices : (s,) int64 model ids; approach : (3,) unit; penalty : Pa/m;
+    airway : (a,) int64 face vertices inside the airway; tissue_edges : (e, 2) int64 model ids;
+    setup_seconds : time to build the problem
+    """
+
+    face: SurfaceMesh
+    landmarks: Landmarks
+    placement: Placement
+    mask: MaskModel
+    options: FitOptions
+    crop_face_ids: np.ndarray
+    n_tissue: int
+    tissue_triangles: np.ndarray
+    model: object
+    skin_vertices: np.ndarray
+    skin_areas: np.ndarray
+    mask_surface: np.ndarray
+    shell_vertices: np.ndarray
+    approach: np.ndarray
+    penalty: float
+    airway: np.ndarray
+    tissue_edges: np.ndarray
+    setup_seconds: float
+
+    @property
+    def n_vertices(self) -> int:
+        return self.model.n_vertices
+
+    def describe(self) -> dict:
+        return {
+            "face": self.face.name, "mask": self.mask.name, "face_vertices": int(self.face.n_vertices),
+            "cropped_skin_vertices": int(len(self.crop_face_ids)), "model_vertices": int(self.n_vertices),
+            "model_tets": int(len(self.model.tets)), "tissue_layers": int(self.options.tissue_layers),
+            "tissue_thickness_mm": self.options.tissue_thickness * 1e3,
+            "tissue_modulus_kpa": self.options.tissue_modulus / 1e3, "tissue_poisson": self.options.tissue_poisson,
+            "cushion_modulus_kpa": self.mask.material.youngs_modulus / 1e3,
+            "cushion_poisson": self.mask.material.poisson_ratio, "cushion_material_source": self.mask.material.source,
+            "penalty_pa_per_m": self.penalty, "approach_axis": self.approach.tolist(),
+            "placement_standoff_mm": self.options.standoff * 1e3,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class FitResult:
+    """Outcome of one fit at strap force ``force`` (N).
+
+    contact_force : N, total contact force on the skin along the approach axis (balances ``force``)
+    support_force : N, reaction of the fixed bone along the approach axis (also balances ``force``)
+    balance_error : |contact_force - force| / force
+    pressure : (n_face,) float64, Pa, contact pressure at every face vertex (0 outside the crop)
+    areas : (n_face,) float64, m^2, vertex areas used for the summary
+    summary : PressureSummary (contact area, peak, mean, area above the threshold)
+    seal : SealResult (sealed?, leak paths with positions and gap widths)
+    gap : (n_face,) m skin->cushion gap along the approach (inf where no cushion)
+    deformed_face : SurfaceMesh (full face, cropped part deformed)
+    deformed_mask : MaskModel at its deformed positions
+    mask_displacement : m, translation of the shell along the approach axis from first contact
+    state : FitState for warm starts
+    newton_iterations, contact_updates : solver effort; seconds : wall time of the solve
+    """
+
+    force: float
+    contact_force: float
+    support_force: float
+    balance_error: float
+    pressure: np.ndarray
+    areas: np.ndarray
+    summary: PressureSummary
+    seal: SealResult
+    gap: np.ndarray
+    deformed_face: SurfaceMesh
+    deformed_mask: MaskModel
+    mask_displacement: float
+    state: FitState
+    newton_iterations: int
+    contact_updates: int
+    seconds: float
+
+    @property
+    def sealed(self) -> bool:
+        return bool(self.seal.sealed)
+
+    @property
+    def pressure_kpa(self) -> np.ndarray:
+        return self.pressure / 1e3
+
+    def as_dict(self) -> dict:
+        """Numbers in report units (N, cm^2, kPa, mm)."""
+        return {
+            "strap_force_n": self.force,
+            "contact_force_n": self.contact_force,
+            "support_force_n": self.support_force,
+            "force_balance_error": self.balance_error,
+            **self.summary.as_dict(),
+            "sealed": self.sealed,
+            "seal": self.seal.as_dict(),
+            "mask_displacement_mm": self.mask_displacement * 1e3,
+            "newton_iterations": self.newton_iterations,
+            "contact_updates": self.contact_updates,
+            "solve_seconds": self.seconds,
+        }
+
+
+def _crop_ids(face: SurfaceMesh, mask: MaskModel, approach: np.ndarray, margin: float | None) -> np.ndarray:
+    """Face vertices within ``margin`` of the mask's skin-side vertices, seen along the approach axis."""
+    if margin is None:
+        return np.arange(face.n_vertices)
+    from scipy.spatial import cKDTree
+
+    a = approach / np.linalg.norm(approach)
+    pts = mask.tetmesh.vertices[mask.contact_vertices]
+
+    def proj(p):
+        return p - np.outer(p @ a, a)
+
+    d, _ = cKDTree(proj(pts)).query(proj(face.vertices))
+    ids = np.flatnonzero(d <= margin)
+    if len(ids) < 16:
+        raise ParameterError(f"cannot place {mask.name} on {face.name}: the mask's footprint covers "
+                             f"only {len(ids)} skin vertices")
+    return ids
+
+
+def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOptions(), *,
+                landmarks: Landmarks | None = None) -> FitProblem:
+    """Build the tissue model, place the mask and assemble the FEM contact problem (module doc).
+
+    face : open skin SurfaceMesh in metres (checked to be face-sized by the landmark finder)
+    mask : MaskModel in its own frame (``placement="auto"``) or on the face (``"as-is"``)
+    """
+    from headsim.collide import TriangleBVH
+    from headsim.mesh.tissue import extrude_tissue_layer
+    from headsim.solvers.contact import surface_vertex_areas
+    from headsim.solvers.fem import fem_from_tetmesh
+    from headsim.solvers.materials import Material
+
+    t0 = time.perf_counter()
+    lm = landmarks if landmarks is not None else find_landmarks(face)
+    bvh = TriangleBVH(face.vertices, face.triangles)
+    placement = place_mask(mask, face, lm, standoff=options.standoff, placement=options.placement, face_bvh=bvh)
+    approach = np.asarray(placement.approach, dtype=np.float64)
+    # start the solve at first contact (module doc)
+    start_shift = placement.min_gap if np.isfinite(placement.min_gap) else 0.0
+    placed = placement.mask.transformed(np.eye(3), start_shift * approach)
+    crop = _crop_ids(face, placed, approach, options.crop_margin)
+    sub, used = face.submesh(crop, name=f"{face.name}[mask region]")
+    layer = extrude_tissue_layer(sub, thickness=options.tissue_thickness, layers=int(options.tissue_layers))
+    tissue = layer.mesh
+    crop_face_ids = used[layer.face_vertex_ids]
+    nt = tissue.n_vertices
+    mt = placed.tetmesh
+    verts = np.vstack([tissue.vertices, mt.vertices])
+    tets = np.vstack([tissue.tets, mt.tets + nt])
+    tet_region = np.concatenate([np.full(tissue.n_tets, REGION_TISSUE, np.int32),
+                                 np.where(mt.tet_region == REGION_SHELL, REGION_SHELL, REGION_CUSHION).astype(np.int32)])
+    fixed = np.concatenate([tissue.fixed, np.zeros(mt.n_vertices, dtype=bool)])
+    combined = TetMesh(verts, tets, tet_region=tet_region, fixed=fixed, name=f"{face.name}+{mask.name}")
+    tissue_mat = Material(options.tissue_modulus, options.tissue_poisson, options.tissue_density, name="facial soft tissue")
+    cm = placed.material
+    cushion_mat = Material(cm.youngs_modulus, cm.poisson_ratio, cm.density, name=cm.name)
+    # shell tets only translate rigidly with the driver: their material does not enter the answer
+    model = fem_from_tetmesh(combined, {REGION_TISSUE: tissue_mat, REGION_CUSHION: cushion_mat,
+                                        REGION_SHELL: cushion_mat})
+    skin = np.arange(layer.n_skin, dtype=np.int64)
+    skin_tri = layer.skin_triangles
+    areas = surface_vertex_areas(nt, skin_tri, tissue.vertices)[skin]
+    edge = np.linalg.norm(np.diff(sub.vertices[sub.edges], axis=1)[:, 0], axis=1)
+    h = float(np.median(edge))
+    e_soft = min(options.tissue_modulus, cm.youngs_modulus)
+    penalty = options.penalty_factor * e_soft / h
+    airway = airway_vertices(face, lm, placed.kind)
+    return FitProblem(
+        face=face, landmarks=lm, placement=placement, mask=placed, options=options, crop_face_ids=crop_face_ids,
+        n_tissue=nt, tissue_triangles=skin_tri, model=model, skin_vertices=skin, skin_areas=areas,
+        mask_surface=mt.boundary_triangles + nt, shell_vertices=placed.shell_vertices + nt, approach=approach,
+        penalty=penalty, airway=airway, tissue_edges=tissue.edges, setup_seconds=time.perf_counter() - t0)
+
+
+def _contact_terms(problem: FitProblem, rest_shell: np.ndarray):
+    from headsim.solvers.contact import PlaneContact
+
+    p = problem
+    e_shell = max(p.mask.material.youngs_modulus, p.options.tissue_modulus)
+    k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
+    contact = PlaneContact(p.skin_vertices, p.skin_areas, p.mask_surface, p.penalty, direction="consistent",
+                           slave_edges=p.tissue_edges)
+    attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, driver=0)
+    return contact, attach
+
+
+def _solve(problem: FitProblem, drivers, x0, u0):
+    from headsim.solvers.contact import QuasiStaticOptions, solve_quasi_static
+
+    p = problem
+    rest_shell = p.model.rest_positions[p.shell_vertices]
+    contact, attach = _contact_terms(p, rest_shell)
+    opts = QuasiStaticOptions(max_contact_updates=p.options.max_contact_updates)
+    res = solve_quasi_static(p.model, [contact, attach], drivers, initial_positions=x0, initial_drivers=u0,
+                             options=opts)
+    return res, contact
+
+
+def fit_mask(face_or_problem: SurfaceMesh | FitProblem, mask: MaskModel | None = None, force: float = 15.0,
+             options: FitOptions = FitOptions(), *, warm_start: FitState | None = None,
+             landmarks: Landmarks | None = None) -> FitResult:
+    """Press ``mask`` onto the face with strap force ``force`` (N) and analyse the contact.
+
+    Either ``fit_mask(face, mask, force)`` or, to reuse the set-up (search, study),
+    ``fit_mask(prepare_fit(face, mask), force=force, warm_start=previous.state)``.
+
+    Raises ParameterError (force <= 0 or > MAX_STRAP_FORCE, a mask that cannot be placed),
+    MeshError (not a face-sized mesh), ConvergenceError / DivergenceError (the solve fails).
+    """
+    force = check_force(force)
+    if isinstance(face_or_problem, FitProblem):
+        problem = face_or_problem
+    else:
+        if mask is None:
+            raise ParameterError("fit_mask(face, mask, force): the mask is missing")
+        problem = prepare_fit(face_or_problem, mask, options, landmarks=landmarks)
+    return problem_fit(problem, force, warm_start=warm_start)
+
+
+def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | None = None) -> FitResult:
+    """One force-controlled equilibrium on a prepared problem (see :func:`fit_mask`)."""
+    from headsim.solvers.contact import RigidDriver
+
+    force = check_force(force)
+    p = problem
+    t0 = time.perf_counter()
+    axis = p.approach
+    iters = updates = 0
+    try:
+        if warm_start is None:
+            # cold start: push the mask in by ``preload`` under displacement control, then release
+            pre, _ = _solve(p, [RigidDriver(axis, displacement=p.options.preload)], None, np.zeros(1))
+            x0, u0 = pre.positions, pre.driver_displacement
+            iters, updates = pre.newton_iterations, pre.contact_updates
+        else:
+            if warm_start.positions.shape != p.model.rest_positions.shape:
+                raise ParameterError("warm_start belongs to a different fit problem")
+            x0, u0 = warm_start.positions, np.array([warm_start.driver])
+        res, contact = _solve(p, [RigidDriver(axis, force=force)], x0, u0)
+    except (ConvergenceError, DivergenceError) as e:
+        raise ConvergenceError(f"mask fit of {p.mask.name} on {p.face.name} at {force:g} N did not converge: {e}") from e
+    except HeadsimError:
+        raise
+    iters += res.newton_iterations
+    updates += res.contact_updates
+    x, u = res.positions, res.driver_displacement
+    if not np.isfinite(x).all():
+        raise DivergenceError(f"mask fit at {force:g} N produced non-finite positions")
+    bad = p.model.check_state(x)
+    if bad is not None:
+        raise DivergenceError(f"mask fit at {force:g} N: {bad}")
+    # pressures and forces on the skin from the face-cushion contact only
+    cf = contact.vertex_forces(x, u)
+    skin_force = cf[p.skin_vertices]
+    contact_force = float((skin_force @ axis).sum())  # the cushion pushes the skin along the approach
+    support = -float((res.reaction_forces @ axis).sum())  # the bone holds the tissue against it
+    n_face = p.face.n_vertices
+    pressure = np.zeros(n_face)
+    pressure[p.crop_face_ids] = contact.vertex_pressure(x, u)[p.skin_vertices]
+    areas = np.zeros(n_face)
+    areas[p.crop_face_ids] = p.skin_areas
+    balance = abs(contact_force - force) / force
+    if balance > p.options.balance_tolerance:
+        raise ConvergenceError(
+            f"mask fit at {force:g} N: contact force {contact_force:.4g} N does not balance the strap force "
+            f"(error {100 * balance:.2f} % > {100 * p.options.balance_tolerance:g} %)")
+    summary = summarize_pressure(pressure, areas, p.options.pressure_threshold)
+    fv = p.face.vertices.copy()
+    fv[p.crop_face_ids] = x[p.skin_vertices]
+    deformed_face = p.face.with_vertices(fv)
+    deformed_mask = p.mask.with_vertices(x[p.n_tissue:])
+    from headsim.mask.placement import skin_cushion_gap
+
+    gap = skin_cushion_gap(deformed_face, deformed_mask, approach=axis)
+    seal = analyse_seal(deformed_face, pressure, p.airway, therapy_pressure_pa=p.options.therapy_pressure, gap=gap)
+    return FitResult(
+        force=force, contact_force=contact_force, support_force=support, balance_error=balance, pressure=pressure,
+        areas=areas, summary=summary, seal=seal, gap=gap, deformed_face=deformed_face, deformed_mask=deformed_mask,
+        mask_displacement=float(u[0]), state=FitState(x, float(u[0]), force), newton_iterations=iters,
+        contact_updates=updates, seconds=time.perf_counter() - t0)
