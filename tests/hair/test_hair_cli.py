@@ -7,8 +7,10 @@ from headsim.cli import main
 
 def test_rod_cli_writes_trajectory_plots_and_images(tmp_path):
     out = tmp_path / "run"
-    main(["hair", "rod", "--scene", "cantilever", "--out", str(out), "--segments", "10",
-          "--duration", "0.01", "--frames", "3"])
+    with pytest.raises(SystemExit) as e:
+        main(["hair", "rod", "--scene", "cantilever", "--out", str(out), "--segments", "10",
+              "--duration", "0.01", "--frames", "3"])
+    assert e.value.code == 0
     assert (out / "trajectory.npz").is_file()
     assert (out / "tip_position.png").is_file() and (out / "kinetic_energy.png").is_file()
     assert len(list((out / "vtk").glob("*.vtu"))) >= 3

@@ -1,8 +1,9 @@
 """Numba kernels of Position Based Dynamics (Müller et al. 2006; XPBD: Macklin et al. 2016).
 
 Pure array functions, inputs first and ``out`` (or the arrays updated in place) last. Units: positions m,
-inverse masses 1/kg, compliance-over-dt² ``alpha_tilde`` in the unit of the constraint over N
-(m/N for distance constraints, m³/N·m... i.e. the constraint unit squared per energy), volumes m³.
+inverse masses 1/kg, volumes m³; ``alpha_tilde`` = compliance / dt², where a compliance is the inverse
+stiffness of the constraint (constraint unit² / J: m/N for distances, m⁶/J for volumes), so that
+alpha_tilde · (1/kg) is dimensionless when the gradient is.
 
 Conventions shared by all projections (Monkin 2016 §3, "general constraint projection"):
 ``dp_i = -s w_i grad_i C`` with ``s = C / sum_j w_j |grad_j C|^2``; with XPBD the multiplier step is
@@ -146,7 +147,7 @@ def project_volume(triangles, triangle_body, target, w, alpha_tilde, stiffness, 
     triangles at i of the cross product of the other two vertices, in order, / 6).
 
     triangles (m, 3) int64 outward-oriented; triangle_body (m,) int64; target (k,) m³; w (n,) 1/kg;
-    alpha_tilde: compliance / dt² (m³/N·m⁻³ … i.e. m⁶/J), 0 for a hard constraint; stiffness PBD factor;
+    alpha_tilde: compliance / dt² (compliance in m⁶/J), 0 for a hard constraint; stiffness PBD factor;
     lam (k,) multipliers, updated; scratch_grad (n, 3), scratch_vol (k,), scratch_denom (k,) work arrays;
     p (n, 3) m, updated. A vertex must belong to one body only.
     """
