@@ -13,6 +13,7 @@ is faster).
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numba
@@ -34,30 +35,36 @@ def _load_face():
         return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
 
 
-def best_time(fn, repeat: int) -> float:
-    best = np.inf
+class Timing:
+    """Best wall-clock and process CPU time (all threads) of a call, s."""
+
+    def __init__(self, wall: float, cpu: float):
+        self.wall = wall
+        self.cpu = cpu
+
+    def __sub__(self, other: "Timing") -> "Timing":
+        return Timing(self.wall - other.wall, self.cpu - other.cpu)
+
+
+def best_time(fn, repeat: int) -> Timing:
+    wall = cpu = np.inf
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+        wall = min(wall, time.perf_counter() - t0)
+        cpu = min(cpu, time.process_time() - c0)
+    return Timing(wall, cpu)
 
 
-def extrapolated(fn, n_sub: int, n_full: int) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return (time.perf_counter() - t0) * n_full / n_sub
+def extrapolated(fn, n_sub: int, n_full: int) -> Timing:
+    t = best_time(fn, 1)
+    return Timing(t.wall * n_full / n_sub, t.cpu * n_full / n_sub)
 
 
 class Table:
-    def __init__(self, n: int):
-        self.n = n
-        self.rows = []
-
-    def add(self, query, method, seconds, ours=None, note=""):
-        self.rows.append((query, method, seconds, ours, note))
-        ratio = f"{seconds / ours:9.1f}x" if ours else "         -"
-        print(f"  {query:<22} {method:<44} {seconds:9.4f} s {ratio}  {note}", flush=True)
+    def add(self, query, method, t: Timing, ours: Timing | None = None, note=""):
+        ratio = f"{t.wall / ours.wall:8.1f}x {t.cpu / ours.cpu:8.1f}x" if ours else f"{'-':>9} {'-':>9}"
+        print(f"  {query:<22} {method:<46} {t.wall:10.4f} s {t.cpu:10.4f} s {ratio}  {note}", flush=True)
 
 
 def main(argv=None):
@@ -77,7 +84,11 @@ def main(argv=None):
     V, F = _load_face()
     lo, hi = V.min(axis=0), V.max(axis=0)
     print(f"face: {len(V)} vertices, {len(F)} triangles, extent {np.round((hi - lo) * 1000, 1)} mm")
-    print(f"queries: {n}; numba threads: {numba.get_num_threads()} ({numba.threading_layer() if False else 'default layer'})")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"queries: {n}; numba threads: {numba.get_num_threads()}; CPU cores: {os.cpu_count()}; "
+          f"load average at start: {load:.1f}")
+    print("times: best of --repeat runs; 'CPU' is process CPU time summed over threads (a fairer\n"
+          "comparison when the machine is shared); ratios are baseline / headsim (> 1: headsim faster)")
 
     # query sets ---------------------------------------------------------------------------------
     box_points = rng.uniform(lo - 0.02, hi + 0.02, (n, 3))  # bounding box + 2 cm
@@ -102,8 +113,8 @@ def main(argv=None):
     bvh.refit(V)
     print(f"warm-up (Numba compile or cache load, excluded below): {time.perf_counter() - t0:.1f} s\n")
 
-    table = Table(n)
-    print(f"  {'query':<22} {'method':<44} {'time':>11} {'baseline/ours':>10}")
+    table = Table()
+    print(f"  {'query':<22} {'method':<46} {'wall':>12} {'CPU':>12} {'ratio wall':>10} {'CPU':>8}")
 
     # build and refit ------------------------------------------------------------------------------
     t_build = best_time(lambda: TriangleBVH(V, F), args.repeat)
@@ -174,6 +185,12 @@ def main(argv=None):
     table.add("signed distance", "headsim BVH (closest + winding)", t_sd)
     t_igl_sd = best_time(lambda: igl.signed_distance(near_points, V, F), 1)
     table.add("signed distance", "libigl signed_distance (winding sign)", t_igl_sd, t_sd)
+    ours_sd = bvh.signed_distance(near_points)
+    igl_sign = np.sign(igl.signed_distance(near_points, V, F)[0])  # its value is (1 - 2w) d: not a distance
+    igl_abs = np.abs(igl.signed_distance(near_points, V, F,
+                                         sign_type=igl.SignedDistanceType.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0])
+    print(f"    check: |signed distance| vs libigl max diff {np.abs(np.abs(ours_sd) - igl_abs).max():.1e} m, "
+          f"same sign as libigl's winding sign on {np.mean(np.sign(ours_sd) == igl_sign):.4%} of points")
 
     # rays ----------------------------------------------------------------------------------------------
     for label, o, d in (("ray first hit (random)", ray_o, ray_d), ("ray first hit (front)", front_o, front_d)):
@@ -218,7 +235,7 @@ def main(argv=None):
     b = a + 0.005 * rng.normal(size=(n, 3))
     t_seg = best_time(lambda: (bvh.refit(Vd), bvh.intersect_segments(a, b)), args.repeat)
     table.add("refit + segments", "headsim: refit, then 5 mm segments", t_seg)
-    print("\nratios: baseline time / headsim time (> 1 means headsim is faster)")
+    print(f"\nload average at end: {os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan'):.1f}")
 
 
 if __name__ == "__main__":

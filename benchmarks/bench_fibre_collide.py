@@ -161,8 +161,9 @@ def b2(quick):
                          AS_build=(tbs.wall, tbs.cpu))
 
 
-def peer_and_brute(f, pairs, label, brute_fibres=60):
+def peer_and_brute(f, pairs, label, brute_segments=3000):
     """Run the cKDTree peer on the whole scene and brute force on a fibre subsample."""
+    brute_fibres = max(2, int(brute_segments * f.n_fibres / f.n_segments))
     (kp, _), tk = timed(capsule_contacts_kdtree, f)
     same = np.array_equal(kp, pairs)
     say(f"[{label}] cKDTree+NumPy peer: {len(kp):,} contacts, {fmt(tk)}; same set as BVH: {same}")
@@ -187,7 +188,7 @@ def peer_and_brute(f, pairs, label, brute_fibres=60):
     return tk, same
 
 
-def b3(quick, spheres):
+def b3(quick, spheres, head_al):
     nf = 4_900 if quick else 49_000
     say(f"\n== B3 full head: {nf:,} fibres x 49 segments at 325 roots/cm² on the bundled head (§7.4.1) ==")
     f, tg = timed(head_scene, nf, 49)
@@ -197,6 +198,10 @@ def b3(quick, spheres):
     for v in ("AS", "AL"):
         bvh, tb = timed(FibreBVH.from_variant, f, v)
         _, tu = timed(bvh.update)
+        if v == "AL" and not (quick or head_al):
+            say(f"AL: build {fmt(tb)} | update {fmt(tu)} | detection skipped (≈ 10x AS; use --head-al)")
+            out[v] = dict(build=(tb.wall, tb.cpu), update=(tu.wall, tu.cpu))
+            continue
         (pairs, _), td = timed(bvh.self_contact_pairs)
         res[v] = (pairs, td)
         say(f"{v}: build {fmt(tb)} | update {fmt(tu)} | detection {len(pairs):,} contacts {fmt(td)}")
@@ -204,18 +209,21 @@ def b3(quick, spheres):
         out[v] = dict(build=(tb.wall, tb.cpu), update=(tu.wall, tu.cpu), detect=(td.wall, td.cpu),
                       contacts=len(pairs), bv_tests=bvh.stats.bv_tests, primitive_tests=bvh.stats.primitive_tests)
         del bvh
-    assert np.array_equal(res["AS"][0], res["AL"][0])
+    if "AL" in res:
+        assert np.array_equal(res["AS"][0], res["AL"][0])
     tk, same = peer_and_brute(f, res["AS"][0], "head")
-    best = min(res["AS"][1].wall, res["AL"][1].wall)
-    best_cpu = min(res["AS"][1].cpu, res["AL"][1].cpu)
+    best = min(r[1].wall for r in res.values())
+    best_cpu = min(r[1].cpu for r in res.values())
+    say(f"(cpu = summed over both threads; on an idle 2-core machine wall ≈ cpu / 2 for the parallel query)")
     say(f"head all-contacts: best BVH {best:.2f} s wall / {best_cpu:.2f} s cpu; peer {tk.wall:.2f} s wall / "
         f"{tk.cpu:.2f} s cpu; speed-up vs peer: {tk.wall / best:.1f}x wall, {tk.cpu / best_cpu:.1f}x cpu "
         f"(goal ≤ 1 s and ≥ 5x; thesis AL 100 s)")
-    say(f"AS:AL detection (cpu) = 1:{res['AL'][1].cpu / max(res['AS'][1].cpu, 1e-9):.2f} (thesis ≈ 1:10 on heads)")
+    if "AL" in res:
+        say(f"AS:AL detection (cpu) = 1:{res['AL'][1].cpu / max(res['AS'][1].cpu, 1e-9):.2f} (thesis ≈ 1:10 on heads)")
     if spheres:
         bvh, tb = timed(FibreBVH.from_variant, f, "SL")
         (pairs, _), td = timed(bvh.self_contact_pairs)
-        say(f"SL: build {fmt(tb)} detection {fmt(td)}; SL/AL = {td.cpu / res['AL'][1].cpu:.1f} (thesis > 18)")
+        say(f"SL: build {fmt(tb)} detection {fmt(td)}; SL/AS = {td.cpu / res['AS'][1].cpu:.1f} (thesis SL/AL > 18)")
         out["SL_detect"] = (td.wall, td.cpu)
     out.update(peer=(tk.wall, tk.cpu), peer_same=same)
     RESULTS["B3"] = out
@@ -353,6 +361,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="small sizes")
     ap.add_argument("--only", default="", help="comma list of sections: B1,B2,B3,soup,B4,B6,B7")
     ap.add_argument("--spheres", action="store_true", help="also run the sphere hierarchy on the head (slow)")
+    ap.add_argument("--head-al", action="store_true", help="also run AL detection on the full head (slow)")
     ap.add_argument("--kmax", type=int, default=100, help="largest k of the k-DOP sweep (≤ 200)")
     ap.add_argument("--json", default="", help="write the results here")
     a = ap.parse_args(argv)
@@ -366,7 +375,7 @@ def main(argv=None):
         FibreBVH.from_variant(tiny, v, k=14).self_contact_pairs()
     sections = [s.strip() for s in a.only.split(",") if s.strip()] or ["B1", "B2", "B3", "soup", "B4", "B6", "B7"]
     for s in sections:
-        {"B1": lambda: b1(a.quick), "B2": lambda: b2(a.quick), "B3": lambda: b3(a.quick, a.spheres),
+        {"B1": lambda: b1(a.quick), "B2": lambda: b2(a.quick), "B3": lambda: b3(a.quick, a.spheres, a.head_al),
          "soup": lambda: soup(a.quick), "B4": lambda: b4_b5(a.quick), "B6": lambda: b6(a.quick),
          "B7": lambda: b7(a.quick, a.kmax)}[s]()
     say(f"\nload average at the end: {os.getloadavg()[0]:.1f}")

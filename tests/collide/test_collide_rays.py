@@ -101,6 +101,14 @@ def test_segments_match_bruteforce_on_closed_meshes(seed):
     want = intersect_rays_bruteforce(a, b - a, v, t, max_distance=length)
     _assert_hits_match(got, want, intersect_rays_all_bruteforce(a, b - a, v, t, max_distance=length))
     assert (got.distance[got.hit] <= length[got.hit] + 1e-12).all()
+    every = TriangleBVH(v, t).intersect_segments_all(a, b)
+    want_all = intersect_rays_all_bruteforce(a, b - a, v, t, max_distance=length)
+    np.testing.assert_array_equal(every.count, [len(w[0]) for w in want_all])
+    np.testing.assert_allclose(every.distance, np.concatenate([w[0] for w in want_all]), rtol=1e-9, atol=1e-12)
+    # a closed surface is crossed an even number of times between two outside points
+    outside = ~TriangleBVH(v, t).contains(np.vstack([a, b]))
+    both_out = outside[: len(a)] & outside[len(a):]
+    assert (every.count[both_out] % 2 == 0).all()
 
 
 def _grid_patch(n=4):

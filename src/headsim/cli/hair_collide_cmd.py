@@ -44,7 +44,8 @@ def _picture(fibres, contacts, obstacle, path: Path, title: str) -> None:
             ax.set_aspect("equal")
         ax.set_title(name)
         ax.set_xlabel("m")
-        ax.legend(loc="lower right", fontsize=8, markerscale=5)
+        if len(pts) or len(obstacle):
+            ax.legend(loc="lower right", fontsize=8, markerscale=5)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path)

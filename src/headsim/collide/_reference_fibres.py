@@ -73,12 +73,12 @@ def capsule_contacts_bruteforce(fibres: FibreSet, nodes=None, chunk: int = 2_000
     return pairs[order].astype(np.int64), params[order]
 
 
-def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 4_000_000):
+def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 20_000):
     """Peer method: cKDTree broad phase on segment midpoints + NumPy exact test.
 
-    Two capsules can touch only if their midpoints are closer than ``(L_a + L_b)/2 + r_a + r_b``, so
-    ``query_pairs`` with ``max length + 2 max radius`` finds every candidate. Returns like
-    :func:`capsule_contacts_bruteforce`.
+    Two capsules can touch only if their midpoints are closer than ``(L_a + L_b)/2 + r_a + r_b``, so a
+    ball query with ``max length + 2 max radius`` finds every candidate. Candidates are generated for
+    ``chunk`` segments at a time (memory stays bounded). Returns like :func:`capsule_contacts_bruteforce`.
     """
     from scipy.spatial import cKDTree
 
@@ -87,11 +87,15 @@ def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 4_000_000
     mid = 0.5 * (p + q)
     length = np.linalg.norm(q - p, axis=1)
     reach = length.max() + 2.0 * fibres.radius.max()
-    cand = cKDTree(mid).query_pairs(reach, output_type="ndarray")
+    tree = cKDTree(mid)
     out_p, out_s = [], []
-    for c0 in range(0, len(cand), chunk):
-        c = cand[c0 : c0 + chunk]
-        a, b = np.minimum(c[:, 0], c[:, 1]), np.maximum(c[:, 0], c[:, 1])
+    for c0 in range(0, len(mid), chunk):
+        lists = tree.query_ball_point(mid[c0 : c0 + chunk], reach)
+        cnt = np.fromiter((len(l) for l in lists), np.int64, len(lists))
+        b = np.fromiter((j for l in lists for j in l), np.int64, int(cnt.sum()))
+        a = np.repeat(np.arange(c0, c0 + len(lists), dtype=np.int64), cnt)
+        keep = b > a
+        a, b = a[keep], b[keep]
         hit, s, t = _test_pairs(fibres, x, a, b)
         out_p.append(np.stack([a[hit], b[hit]], 1))
         out_s.append(np.stack([s[hit], t[hit]], 1))

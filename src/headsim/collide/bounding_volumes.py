@@ -21,7 +21,7 @@ All lengths in m. The interface (Sobottka 2008, §7.3.7; digest §10 item 4) is 
   PCA box (eqs. 7.10–7.12) of the corners / points; overlap = separating-axis test (15 axes).
 * Sphere: leaf = midpoint, ``‖a‖/2 + r``; merge = smallest sphere around two spheres (closed form);
   ``from_points`` = a near-minimal enclosing ball (Ritter start, Bădoiu–Clarkson iterations, then the
-  radius is raised so every point is inside — always enclosing, minimal to within ~1 %).
+  radius is raised so every point is inside — always enclosing, near-minimal, not exact).
 
 k-DOP directions: the classic sets k = 6, 14, 18, 26 (Klosowski et al. 1998) or, for any even
 k = 6…200, k/2 lines that maximise the minimum chordal distance ``√(1 − (n_iᵀn_j)²)`` in G(3,1)

@@ -135,8 +135,21 @@ class TriangleBVH:
     leaf_size : triangles per leaf at most (4 is a good default for every query here)
 
     The object is mutable on purpose: :meth:`refit` swaps in new vertex positions (same
-    connectivity) and recomputes the boxes bottom-up in O(n). Queries are vectorised over points and
-    run in Numba (parallel over chunks of points).
+    connectivity) and recomputes the boxes bottom-up in O(n) (0.7 ms for the 18,460-triangle face;
+    a rebuild costs 20–30 ms). Queries are vectorised over points and run in Numba, parallel over
+    chunks of 256 points (``prange``); calls with fewer than 2,048 points run on one thread.
+
+    Measured on the bundled face (2 shared cores, see ``benchmarks/bench_collide.py``): 100k
+    closest points ≈ 0.4–0.9 s CPU (1.5× faster than libigl's AABB, > 100× trimesh), 100k
+    first-hit rays ≈ 0.06–0.2 s (≈ 2× slower than embree in float32, which cannot refit), 100k
+    winding numbers ≈ 0.2 s CPU (≈ 2× the CPU of libigl's fast_winding_number at similar
+    accuracy).
+
+    Notes
+    -----
+    Numba's on-disk cache does not notice edits to a helper kernel imported from another module
+    (e.g. ``closest_point_triangle`` used by the winding-number kernel): delete
+    ``__pycache__/*.nbi`` after changing one.
 
     References
     ----------

@@ -10,8 +10,9 @@ Implements Sobottka 2008, Ch. 7 §7.3 (digest ``hair_ch7_collision_detection.md`
   (Lemma 7.3.1), which the tests check node by node.
 * **The ten variants** of Table 7.1: AS, AL, DS, DL, OS, OW, OL, SS, SW, SL (:data:`VARIANTS`).
 * **Maintenance** (Alg. 5): :meth:`FibreBVH.update` refits leaves and merges bottom-up (H_TI, and the
-  lazy refit of H_R); wrapped trees recompute every node's MEV over its leaf range (the result the
-  cascade verification of Alg. 4 converges to, without the basis bookkeeping); :meth:`FibreBVH.rebuild`
+  lazy refit of H_R); wrapped trees recompute every node's MEV over its leaf range (what the cascade
+  verification of Alg. 4 maintains, computed directly in O(S log S) without the basis bookkeeping;
+  sphere MEVs are near-minimal enclosing balls, not Gärtner's exact ones); :meth:`FibreBVH.rebuild`
   re-partitions H_R; :class:`RebuildPolicy` chooses between them per step.
 * **Query** (Alg. 3): simultaneous depth-first descent from (root, root) with self-pair handling
   (each unordered pair once), adjacency exclusion (same or neighbouring segment of one fibre; the

@@ -156,7 +156,7 @@ def spiral(n_segments: int = 80, dt: float = 2.5e-4, duration: float = 0.2, turn
                  f"helical spring, {turns:g} turns, axial tip force {force:g} N released at {release:g} s (seed fig. 3.18)")
 
 
-def loop(n_segments: int = 60, dt: float = 5e-3, duration: float = 1.5, length: float = 0.45) -> Scene:
+def loop(n_segments: int = 60, dt: float = 0.05, duration: float = 30.0, length: float = 0.45) -> Scene:
     """Seed fig. 3.17: a straight horizontal rod with a tip torque about d1 (ramped to 2 pi EI / L over
     the first third of the run, then held); no gravity. The static answer is a closed circle."""
     m = _hair(length, n_segments, root_direction=(1, 0, 0), root_normal=(0, 0, 1))

@@ -396,13 +396,15 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray):
     return contact, attach
 
 
-def _solve(problem: FitProblem, drivers, x0, u0):
+def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float):
     from headsim.solvers.contact import QuasiStaticOptions, solve_quasi_static
 
     p = problem
     rest_shell = p.model.rest_positions[p.shell_vertices]
     contact, attach = _contact_terms(p, rest_shell)
-    opts = QuasiStaticOptions(max_contact_updates=p.options.max_contact_updates)
+    # per-dof residual tolerance: the imbalance of the whole mask is at most (its dofs) x this
+    opts = QuasiStaticOptions(max_contact_updates=p.options.max_contact_updates,
+                              force_tolerance=1e-7 * force_scale)
     res = solve_quasi_static(p.model, [contact, attach], drivers, initial_positions=x0, initial_drivers=u0,
                              options=opts)
     return res, contact
@@ -441,14 +443,14 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
     try:
         if warm_start is None:
             # cold start: push the mask in by ``preload`` under displacement control, then release
-            pre, _ = _solve(p, [RigidDriver(axis, displacement=p.options.preload)], None, np.zeros(1))
+            pre, _ = _solve(p, [RigidDriver(axis, displacement=p.options.preload)], None, np.zeros(1), force)
             x0, u0 = pre.positions, pre.driver_displacement
             iters, updates = pre.newton_iterations, pre.contact_updates
         else:
             if warm_start.positions.shape != p.model.rest_positions.shape:
                 raise ParameterError("warm_start belongs to a different fit problem")
             x0, u0 = warm_start.positions, np.array([warm_start.driver])
-        res, contact = _solve(p, [RigidDriver(axis, force=force)], x0, u0)
+        res, contact = _solve(p, [RigidDriver(axis, force=force)], x0, u0, force)
     except (ConvergenceError, DivergenceError) as e:
         raise ConvergenceError(f"mask fit of {p.mask.name} on {p.face.name} at {force:g} N did not converge: {e}") from e
     except HeadsimError:

@@ -64,13 +64,14 @@ def project_volume_numpy(triangles, target, w, alpha_tilde, lam, p):
 
 
 def numpy_pbd_solve(positions, edges, rest, w, triangles, target, *, dt, iterations, damping, edge_compliance,
-                    stop_tolerance, max_steps, omega=1.0):
+                    stop_tolerance, max_steps, omega=1.0, stop_patience=1):
     """Straightforward NumPy PBD/XPBD loop (Jacobi edges + one volume constraint, no gravity), to the stop
-    rule of Monkin §4.4. Returns (positions, steps)."""
+    rule of Monkin §4.4 (held on ``stop_patience`` consecutive steps). Returns (positions, steps)."""
     x = np.array(positions, dtype=float)
     v = np.zeros_like(x)
     at_e = edge_compliance / dt**2
     previous = np.abs(x).sum()
+    quiet = 0
     for step in range(1, max_steps + 1):
         p = x + dt * v
         lam_e = np.zeros(len(edges))
@@ -81,7 +82,8 @@ def numpy_pbd_solve(positions, edges, rest, w, triangles, target, *, dt, iterati
         v = (1.0 - damping) * (p - x) / dt
         x = p
         current = np.abs(x).sum()
-        if step >= 3 and abs(current - previous) < stop_tolerance * len(x):
+        quiet = quiet + 1 if abs(current - previous) < stop_tolerance * len(x) else 0
+        if step >= 3 and quiet >= stop_patience:
             return x, step
         previous = current
     return x, max_steps

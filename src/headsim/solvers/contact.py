@@ -298,50 +298,58 @@ class PlaneContact(ContactTerm):
 
     # -- active set and lagged directions ------------------------------------------------------------
     def update(self, x, u) -> bool:
-        """Recompute the active contacts (slave vertices inside the master surface) and their planes.
+        """Refresh the active contacts and their planes from the current positions.
 
-        Returns True if the set of active vertices changed.
+        Active: slave vertices inside the master surface (plane from :func:`exit_points`, consistent or
+        naive direction), vertices outside but closer than ``margin`` (plane through the closest
+        surface point, normal towards the vertex: no force until they touch), and previously active
+        vertices whose gap is still below ``margin`` (they keep their plane unless
+        ``refresh_planes``). Returns True if the set of active vertices changed.
         """
-        from headsim.solvers.contact_consistent import exit_points
+        from headsim.solvers.contact_consistent import _bvh, exit_points
 
         y = self._master_positions(x, u)
-        old = set(self.active.tolist())
-        # keep the previously active vertices (lagged planes) and add the new penetrations
+        tree = _bvh(y, self.master_triangles)
+        old_active = self.active
+        old_pos = {a: i for i, a in enumerate(old_active.tolist())}
         res = exit_points(x, self.slave_vertices, y, self.master_triangles, method=self.direction,
-                          edges=self.slave_edges)
-        inside = res.inside.copy()
-        keep = np.zeros(len(self.slave_vertices), dtype=bool)
-        keep[self.active] = True
-        if len(self.active):
+                          edges=self.slave_edges, bvh=tree)
+        k = len(self.slave_vertices)
+        tri = np.zeros((k, 3), np.int64)
+        wts = np.zeros((k, 3))
+        nrm = np.zeros((k, 3))
+        ok = np.zeros(k, dtype=bool)
+        fresh = res.valid & (res.triangle >= 0)
+        tri[fresh] = self.master_triangles[res.triangle[fresh]]
+        wts[fresh] = res.barycentric[fresh]
+        nrm[fresh] = res.direction[fresh]
+        ok |= fresh
+        if self.margin > 0:
+            near = np.flatnonzero(~res.inside)
+            if len(near):
+                cp = tree.closest_points(x[self.slave_vertices[near]], max_distance=self.margin)
+                hit = cp.triangle >= 0
+                idx = near[hit]
+                vec = x[self.slave_vertices[idx]] - cp.point[hit]
+                dist = np.linalg.norm(vec, axis=1)
+                n_tri = tree.triangle_normals(cp.triangle[hit])
+                direction = np.where(dist[:, None] > 1e-12 * self.margin, vec / np.maximum(dist, 1e-300)[:, None], n_tri)
+                tri[idx] = self.master_triangles[cp.triangle[hit]]
+                wts[idx] = cp.barycentric[hit]
+                nrm[idx] = direction
+                ok[idx] = True
+        if len(old_active):
             g_old = self._gaps(x, u)
-            still = self.active[g_old < self.margin]
-            keep[:] = False
-            keep[still] = True
-        new_active = np.flatnonzero(inside | keep)
-        # vertices with a fresh exit point take it; kept ones outside keep their old plane
-        tri = np.zeros((len(new_active), 3), np.int64)
-        wts = np.zeros((len(new_active), 3))
-        nrm = np.zeros((len(new_active), 3))
-        old_pos = {a: i for i, a in enumerate(self.active.tolist())}
-        fresh = inside[new_active] & res.valid[new_active]
-        for j, a in enumerate(new_active.tolist()):
-            if a in old_pos and not self.refresh_planes:
-                i = old_pos[a]  # lagged plane from the first contact (keeps the solve consistent)
-                tri[j], wts[j], nrm[j] = self.tri_vertices[i], self.weights[i], self.normals[i]
-            elif fresh[j]:
-                tri[j] = self.master_triangles[res.triangle[a]]
-                wts[j] = res.barycentric[a]
-                nrm[j] = res.direction[a]
-            elif a in old_pos:
-                i = old_pos[a]
-                tri[j], wts[j], nrm[j] = self.tri_vertices[i], self.weights[i], self.normals[i]
-            else:
-                tri[j] = self.master_triangles[res.triangle[a]] if res.triangle[a] >= 0 else 0
-                wts[j] = res.barycentric[a] if res.triangle[a] >= 0 else 0
-                nrm[j] = 0.0  # no usable exit point: inactive
-        ok = np.linalg.norm(nrm, axis=1) > 0
-        self.active, self.tri_vertices, self.weights, self.normals = new_active[ok], tri[ok], wts[ok], nrm[ok]
-        return set(self.active.tolist()) != old
+            for i, a in enumerate(old_active.tolist()):
+                if g_old[i] < self.margin or res.inside[a]:
+                    if not self.refresh_planes or not ok[a]:
+                        tri[a], wts[a], nrm[a] = self.tri_vertices[i], self.weights[i], self.normals[i]
+                        ok[a] = True
+        ok &= np.linalg.norm(nrm, axis=1) > 0
+        new_active = np.flatnonzero(ok)
+        changed = set(new_active.tolist()) != set(old_pos)
+        self.active, self.tri_vertices, self.weights, self.normals = new_active, tri[ok], wts[ok], nrm[ok]
+        return changed
 
 
 @dataclass(frozen=True)

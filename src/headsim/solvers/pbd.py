@@ -247,6 +247,8 @@ class PBDOptions:
     stop_tolerance : m per particle; stop when |Δ Σ|x|| < stop_tolerance × n (Monkin §4.4)
     min_steps, max_steps : bounds of :meth:`PBDSolver.solve`
     parallel : use the Numba-parallel kernels (a gain only with several free cores and large meshes)
+    stop_patience : the stop rule must hold on this many consecutive steps (1 = the seed's rule; the
+        change of Σ|x| also passes through zero whenever the motion turns, so > 1 makes the rule robust)
     """
 
     dt: float = 1.0 / 60.0
@@ -264,6 +266,7 @@ class PBDOptions:
     min_steps: int = 2
     max_steps: int = 10_000
     parallel: bool = False
+    stop_patience: int = 1
 
     def __post_init__(self):
         if not (self.dt > 0 and math.isfinite(self.dt)):
@@ -286,6 +289,8 @@ class PBDOptions:
             raise ParameterError("compliances must be >= 0")
         if self.stabilisation_iterations < 0 or self.min_steps < 0 or self.max_steps < 1:
             raise ParameterError("stabilisation_iterations, min_steps must be >= 0 and max_steps >= 1")
+        if int(self.stop_patience) < 1:
+            raise ParameterError(f"stop_patience must be >= 1, got {self.stop_patience}")
         if not self.stop_tolerance > 0:
             raise ParameterError(f"stop_tolerance must be > 0 m, got {self.stop_tolerance}")
 
@@ -503,7 +508,8 @@ class PBDSolver:
               cancel: Callable[[], bool] | None = None) -> tuple[PBDState, SolveInfo]:
         """Stabilise, then step until the stop rule of Monkin §4.4 holds.
 
-        Stops when |Σ|x_k| - Σ|x_(k-1)|| < stop_tolerance × n after at least ``min_steps`` steps, or after
+        Stops when |Σ|x_k| - Σ|x_(k-1)|| < stop_tolerance × n on ``stop_patience`` consecutive steps (after at
+        least ``min_steps`` steps), or after
         ``max_steps`` steps (``converged=False``), or when ``cancel()`` returns True (checked every step).
         ``callback(state, change)`` is called after every step (progress display).
         """
@@ -513,6 +519,7 @@ class PBDSolver:
         threshold = o.stop_tolerance * self.model.n_particles
         previous = _k.sum_abs(state.positions)
         change = math.inf
+        quiet = 0
         for k in range(o.max_steps):
             if cancel is not None and cancel():
                 return state, SolveInfo(k, False, True, change)
@@ -522,6 +529,7 @@ class PBDSolver:
             previous = current
             if callback is not None:
                 callback(state, change)
-            if k + 1 >= o.min_steps and change < threshold:
+            quiet = quiet + 1 if change < threshold else 0
+            if k + 1 >= o.min_steps and quiet >= o.stop_patience:
                 return state, SolveInfo(k + 1, True, False, change)
         return state, SolveInfo(o.max_steps, False, False, change)

@@ -11,7 +11,11 @@ Discretisation (§3.4.3): generalised-alpha with six coefficients, ``(alpha, bet
 and in arc length; derivatives by the generalised trapezoid rules eqs. 3.154/3.155. Every cell
 equation 3.153 is solved together with the trapezoid links in s for all nodes of a fibre
 simultaneously: Newton with the analytic Jacobian (block-banded, bandwidth 17), a banded Gaussian
-elimination, Armijo backtracking (iota = 1e-4, mu halved from 1) and a warm start (Algorithm 1).
+elimination with partial pivoting (factorised once per step and re-used while the residual falls by
+a factor 4 per iteration, i.e. a modified Newton; re-factorised otherwise), Armijo backtracking
+(iota = 1e-4, mu halved from 1) and a warm start (Algorithm 1). Batches of at least
+``PARALLEL_MIN_FIBRES`` fibres are stepped by a thread-parallel Numba kernel (one banded solve per
+fibre in ``prange``).
 
 Implementation notes
 --------------------
@@ -399,12 +403,14 @@ class RodSolverOptions:
 
 @dataclass(frozen=True)
 class StepReport:
-    """Per-fibre Newton statistics of one step: iterations (F,), residual (F,), status (F,), evaluations (F,)."""
+    """Per-fibre Newton statistics of one step: iterations (F,), residual (F,), status (F,),
+    residual evaluations (F,), Jacobian factorisations (F,)."""
 
     iterations: np.ndarray
     residual: np.ndarray
     status: np.ndarray
     evaluations: np.ndarray
+    factorizations: np.ndarray
 
 
 def _scales(model: RodModel) -> np.ndarray:
@@ -488,12 +494,13 @@ class ImplicitRodSolver:
         xs = np.empty_like(x)
         g = np.empty_like(x)
         R = np.empty((F, nn, 3, 3))
-        info = np.zeros((F, 4))
+        info = np.zeros((F, 5))
         kernel = _k.newton_step_batch if F >= PARALLEL_MIN_FIBRES else _k.newton_step_serial
         kernel(state.x, state.x_t, state.x_s, state.g, state.frames,
                              model.natural_curvature, model.natural_curvature_ds, fdist, bc, par,
                              _scales(model), x, xt, xs, g, R, info)
-        report = StepReport(info[:, 0].astype(int), info[:, 1], info[:, 2].astype(int), info[:, 3].astype(int))
+        report = StepReport(info[:, 0].astype(int), info[:, 1], info[:, 2].astype(int), info[:, 3].astype(int),
+                            info[:, 4].astype(int))
         if not np.isfinite(x).all():
             raise DivergenceError(f"non-finite rod state at t = {state.time + dt:.4g} s (dt = {dt:g} s)")
         bad = report.status != 0
