@@ -128,9 +128,12 @@ def batched(n_fibres, N, n_steps=3):
     solver = ImplicitRodSolver(RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5)))
     st, _ = solver.step(m, st, 1e-3, RodLoads(gravity=GRAV))  # compile / warm
     t0 = time.perf_counter()
+    c0 = time.process_time()
     for _ in range(n_steps):
         st, rep = solver.step(m, st, 1e-3, RodLoads(gravity=GRAV))
-    return (time.perf_counter() - t0) / n_steps, float(rep.iterations.mean())
+    wall = (time.perf_counter() - t0) / n_steps
+    cpu = (time.process_time() - c0) / n_steps
+    return wall, float(rep.iterations.mean()), cpu
 
 
 def main():
@@ -166,8 +169,13 @@ def main():
               "measured: a full second would take the time printed above)")
         pe = ratio
     nf = 1000 if args.quick else 10000
-    per, its_b = batched(nf, 25)
-    print(f"batched: {nf} fibres x 25 segments: {per:.2f} s per step ({1 / per:.2f} steps/s, {its_b:.1f} Newton it.)")
+    per, its_b, cpu = batched(nf, 25)
+    import numba
+
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"batched: {nf} fibres x 25 segments on {numba.get_num_threads()} threads: {per:.2f} s wall per step "
+          f"({1 / per:.2f} steps/s, {its_b:.1f} Newton it.); {cpu:.2f} CPU-s per step "
+          f"(-> {2 / cpu:.2f} steps/s on 2 idle cores); machine load average {load:.1f}")
     return pe
 
 

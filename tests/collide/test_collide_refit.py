@@ -43,3 +43,23 @@ def test_refit_keeps_the_input_untouched_and_copies_it():
     v1[:] = 0.0  # the caller reuses its buffer
     np.testing.assert_array_equal(bvh.vertices, keep)
     assert not bvh.vertices.flags.writeable
+
+
+def test_parallel_path_equals_the_single_thread_path():
+    # >= 2048 queries run in parallel chunks, fewer on one thread: the answers must be identical
+    v, t = random_star_shape(3, 2)
+    rng = np.random.default_rng(4)
+    p = rng.uniform(-2, 2, (3000, 3))
+    d = rng.normal(size=(3000, 3))
+    bvh = TriangleBVH(v, t)
+    big = (bvh.closest_points(p), bvh.intersect_rays(p, d), bvh.winding_number(p))
+    parts = [(bvh.closest_points(p[s]), bvh.intersect_rays(p[s], d[s]), bvh.winding_number(p[s]))
+             for s in (slice(0, 1000), slice(1000, 2000), slice(2000, 3000))]
+    np.testing.assert_array_equal(big[0].distance, np.concatenate([x[0].distance for x in parts]))
+    np.testing.assert_array_equal(big[0].triangle, np.concatenate([x[0].triangle for x in parts]))
+    np.testing.assert_array_equal(big[1].distance, np.concatenate([x[1].distance for x in parts]))
+    np.testing.assert_array_equal(big[1].triangle, np.concatenate([x[1].triangle for x in parts]))
+    np.testing.assert_array_equal(big[2], np.concatenate([x[2] for x in parts]))
+    allh = bvh.intersect_rays_all(p, d)
+    np.testing.assert_array_equal(allh.count, np.concatenate([bvh.intersect_rays_all(p[s], d[s]).count for s in
+                                                             (slice(0, 1000), slice(1000, 2000), slice(2000, 3000))]))

@@ -263,7 +263,7 @@ def apply_pinv(q, K, out):
         out[9 + i] = q[i]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def banded_factor(band, kl, ku, piv):
     """In-place LU factorisation with partial pivoting of a band matrix (LAPACK dgbtf2 convention:
     multipliers stay where they were computed, later row swaps touch only columns to the right).
