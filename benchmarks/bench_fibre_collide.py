@@ -214,7 +214,7 @@ def b3(quick, spheres, head_al):
     tk, same = peer_and_brute(f, res["AS"][0], "head")
     best = min(r[1].wall for r in res.values())
     best_cpu = min(r[1].cpu for r in res.values())
-    say(f"(cpu = summed over both threads; on an idle 2-core machine wall ≈ cpu / 2 for the parallel query)")
+    say("(cpu = summed over both threads; on an idle 2-core machine wall ≈ cpu / 2 for the parallel query)")
     say(f"head all-contacts: best BVH {best:.2f} s wall / {best_cpu:.2f} s cpu; peer {tk.wall:.2f} s wall / "
         f"{tk.cpu:.2f} s cpu; speed-up vs peer: {tk.wall / best:.1f}x wall, {tk.cpu / best_cpu:.1f}x cpu "
         f"(goal ≤ 1 s and ≥ 5x; thesis AL 100 s)")

@@ -108,7 +108,7 @@ def test_moving_support_along_arc_is_stable_and_followed():
         angle = np.arctan2(root[2], root[0])
         # the support starts with a velocity jump at t = 0; the trapezoidal root update of the first
         # step lags by half a step, everything after follows the arc exactly
-        assert abs(angle - sc.support_angle(t)) <= 0.5 * rate * sc.dt + 1e-6
+        assert abs(angle - sc.info["support_angle"](t)) <= 0.5 * rate * sc.dt + 1e-6
     assert np.isfinite(traj.positions).all()
     print("moving support: max kinetic energy", traj.kinetic.max(), "mean Newton iterations", traj.iterations.mean())
 

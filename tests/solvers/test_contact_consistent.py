@@ -103,3 +103,32 @@ def test_relative_velocity_damping_term_eq_3_7_3_8():
     # v_rel = v_body - v_mass = 0 - (-0.1) along r = +y: extra force 2.0 * 0.1 N up on each colliding point
     assert np.allclose((f - f0)[:off[1]][inside, 1], 0.2)
     assert np.allclose((f - f0)[:off[1]][~inside], 0.0)
+
+
+def test_bfs_kernel_matches_reference():
+    import scipy.sparse as sp
+
+    from headsim.solvers._kernels.contact import bfs_propagate
+    from headsim.solvers._reference import bfs_propagate_reference
+
+    rng = np.random.default_rng(5)
+    mesh = block_tetmesh((0.03, 0.03, 0.03), (3, 3, 3))
+    n = mesh.n_vertices
+    x = mesh.vertices + 1e-3 * rng.standard_normal((n, 3))
+    e = mesh.edges
+    adj = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
+    colliding = x[:, 2] < 0.02
+    assigned = colliding & (mesh.vertices[:, 2] > 0.015)  # seeds
+    depth = np.where(assigned, rng.uniform(0, 1e-3, n), 0.0)
+    direction = np.zeros((n, 3))
+    d = rng.standard_normal((n, 3)) + [0, 0, 3]
+    direction[assigned] = (d / np.linalg.norm(d, axis=1, keepdims=True))[assigned]
+    ids = np.arange(n)
+    want = bfs_propagate_reference(x, ids, colliding, assigned, depth, direction,
+                                   [list(adj.indices[adj.indptr[i]:adj.indptr[i + 1]]) for i in range(n)])
+    got_assigned, got_depth, got_dir = assigned.copy(), depth.copy(), direction.copy()
+    bfs_propagate(x, ids, colliding, got_assigned, got_depth, got_dir, adj.indptr.astype(np.int64),
+                  adj.indices.astype(np.int64))
+    assert np.array_equal(got_assigned, want[0]) and got_assigned[colliding].all()
+    assert np.allclose(got_depth, want[1], rtol=1e-12, atol=1e-15)
+    assert np.allclose(got_dir, want[2], rtol=1e-12, atol=1e-15)

@@ -126,3 +126,16 @@ def test_implicit_euler_settles_a_hanging_block_under_gravity():
     eq = solve_quasi_static(model)
     assert np.abs(states[-1].positions - eq.positions).max() < 1e-3 * np.abs(eq.positions - model.rest_positions).max() + 1e-9
     assert eq.reaction_forces[:, 1].sum() == pytest.approx(-model.external_force[:, 1].sum(), rel=1e-9)
+
+
+def test_inverted_tets_are_detected_as_divergence():
+    from headsim.solvers.fem import fem_from_tetmesh
+    from headsim.solvers.materials import Material
+
+    mesh = block_tetmesh((0.01, 0.01, 0.01), (1, 1, 1))
+    model = fem_from_tetmesh(mesh, Material.from_kpa(10.0, 0.3, 1000.0))
+    v = np.zeros((model.n_vertices, 3))
+    v[:, 2] = -(mesh.vertices[:, 2] - 0.005) * 40.0  # flips the block through itself within the step
+    state = BodyState(model.rest_positions, v)
+    with pytest.raises(DivergenceError, match="inverted"):
+        SymplecticEuler(max_jump=10.0).step(model, state, 0.001 * 25 * 2.5)

@@ -92,13 +92,14 @@ def test_volume_projection_matches_reference_and_reaches_target(sphere):
     vol0, _ = ref.volume_and_gradient(p0, sphere.triangles)
     target = vol0 * 1.2
     p, lam = p0.copy(), np.zeros(1)
-    K.project_volume(sphere.triangles, np.zeros(sphere.n_triangles, np.int64), np.array([target]), w, 0.0, 1.0, lam,
+    tb, vb = np.zeros(sphere.n_triangles, np.int64), np.zeros(sphere.n_vertices, np.int64)
+    K.project_volume(sphere.triangles, tb, vb, np.array([target]), w, 0.0, 1.0, lam,
                      np.zeros_like(p), np.zeros(1), np.zeros(1), p)
     p_ref = p0.copy()
     ref.project_volume_numpy(sphere.triangles, target, w, 0.0, 0.0, p_ref)
     np.testing.assert_allclose(p, p_ref, atol=1e-14)
     for _ in range(3):
-        K.project_volume(sphere.triangles, np.zeros(sphere.n_triangles, np.int64), np.array([target]), w, 0.0, 1.0,
+        K.project_volume(sphere.triangles, tb, vb, np.array([target]), w, 0.0, 1.0,
                          lam, np.zeros_like(p), np.zeros(1), np.zeros(1), p)
     vol, _ = ref.volume_and_gradient(p, sphere.triangles)
     assert vol == pytest.approx(target, rel=1e-12)

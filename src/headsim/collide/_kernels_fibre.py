@@ -24,10 +24,10 @@ from headsim.collide._kernels_fibre_bv import (
 )
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def segment_slabs(nodes, seg_start, radius, dirs, out):
     """Slab rows (S, 2m) of all segments in global order (eq. 7.9)."""
-    for s in prange(seg_start.shape[0]):
+    for s in range(seg_start.shape[0]):
         i = seg_start[s]
         slab_from_capsule(nodes[i, 0], nodes[i, 1], nodes[i, 2], nodes[i + 1, 0], nodes[i + 1, 1],
                           nodes[i + 1, 2], radius[s], dirs, out, s)
@@ -163,10 +163,10 @@ def build_spatial(leaf_slabs, perm, left, right, lo, hi, node_slabs):
     return count
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def refit_leaves(kind, dirs, nodes, seg_start, radius, perm, leaf_node, bv):
     """Fit every leaf BV to its segment (Alg. 5 line 5); ``leaf_node`` (S,) is the node of each leaf slot."""
-    for k in prange(perm.shape[0]):
+    for k in range(perm.shape[0]):
         u = leaf_node[k]
         s = perm[k]
         i = seg_start[s]

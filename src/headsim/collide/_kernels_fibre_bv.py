@@ -14,7 +14,7 @@ KIND_SPHERE = 1
 KIND_OBB = 2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def slab_from_capsule(ax, ay, az, bx, by, bz, r, dirs, bv, row):
     """Slab row of one capsule (Sobottka eq. 7.9): ``[min(nᵀa, nᵀb) − r, max(nᵀa, nᵀb) + r]``."""
     m = dirs.shape[0]
@@ -29,7 +29,7 @@ def slab_from_capsule(ax, ay, az, bx, by, bz, r, dirs, bv, row):
             bv[row, m + i] = pa + r
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sphere_from_capsule(ax, ay, az, bx, by, bz, r, bv, row):
     """Sphere row of one capsule: midpoint, half length + r."""
     dx, dy, dz = bx - ax, by - ay, bz - az
@@ -93,14 +93,14 @@ def enclosing_ball(centres, radii, out):
     cy = 0.5 * (centres[ia, 1] + centres[ib, 1])
     cz = 0.5 * (centres[ia, 2] + centres[ib, 2])
     for it in range(1, 97):
-        best, jf = -1.0, 0
+        best = -1.0
         fx, fy, fz = 0.0, 0.0, 0.0
         for i in range(n):
             dx, dy, dz = centres[i, 0] - cx, centres[i, 1] - cy, centres[i, 2] - cz
             dn = np.sqrt(dx * dx + dy * dy + dz * dz)
             d = dn + radii[i]
             if d > best:
-                best, jf = d, i
+                best = d
                 if dn > 0:
                     fx = centres[i, 0] + radii[i] * dx / dn
                     fy = centres[i, 1] + radii[i] * dy / dn
@@ -244,7 +244,7 @@ def obb_overlap(bv, u, v):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def bv_overlap(bv, u, v, kind, m):
     """Do BV rows ``u`` and ``v`` of ``bv`` overlap? (kind 0: m slabs; 1: spheres; 2: OBBs)."""
     if kind == 0:
@@ -261,7 +261,7 @@ def bv_overlap(bv, u, v, kind, m):
     return obb_overlap(bv, u, v)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def bv_size(bv, u, kind, m):
     """A size measure used by the 'volume' descent rule: slab-width sum, sphere radius, OBB half-extent sum."""
     if kind == 0:

@@ -14,7 +14,7 @@ from headsim.collide._kernels_fibre_bv import bv_overlap, bv_size
 N_COUNTERS = 5
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _clamp01(x):
     if x < 0.0:
         return 0.0
@@ -67,7 +67,7 @@ def segment_segment_closest(p1x, p1y, p1z, q1x, q1y, q1z, p2x, p2y, p2z, q2x, q2
     return s, t, dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _capsule_test(sa, sb, nodes, seg_start, radius):
     i = seg_start[sa]
     j = seg_start[sb]

@@ -53,8 +53,10 @@ class GraftOptions:
     require_convergence : raise ConvergenceError when max_steps is reached before the stop rule holds
     parallel : Numba-parallel kernels (a gain only with free cores)
     warm_start : start PBD from a bulge of the right volume (:func:`warm_start_positions`) instead of the
-        flat region (the seed's start). Same equilibrium; measured (benchmarks/bench_graft.py): it does
-        not save steps — the slow mode is the in-plane redistribution of stretch, which the guess lacks
+        flat region (the seed's start). Off by default: measured (benchmarks/bench_graft.py) it does not
+        save steps on the 2,400-vertex region, and on the 9,400-vertex one it did not come within 0.1 mm
+        of the flat-start equilibrium in 20,000 steps (the spring net + volume problem is not convex, so
+        the start may select the equilibrium)
     """
 
     areal_density: float = 10.0
@@ -213,7 +215,8 @@ def warm_start_positions(setup: GraftSetup, volume: float) -> np.ndarray:
     membrane-like bulge u (cotangent Laplacian: -L u = M 1 inside, u = 0 on the loop), scaled so that
     the closed model gains ``volume`` m³ (secant iterations on the exact closed volume).
 
-    Only an initial guess for PBD (the seed starts from the flat region).
+    Only an initial guess for PBD (the seed starts from the flat region); experimental, see
+    :class:`GraftOptions` ``warm_start``.
     """
     import igl
     import scipy.sparse.linalg as spla

@@ -14,7 +14,7 @@ import numpy as np
 
 from headsim.errors import ParameterError
 from headsim.hair import properties as props
-from headsim.solvers.rods import RodModel, RodState, straight_frame
+from headsim.solvers.rods import RodModel, straight_frame
 
 __all__ = [
     "fibre_model",

@@ -31,7 +31,8 @@ def write_trajectory(scene, traj, folder: Path, images: bool = True) -> list[Pat
     files = []
     npz = folder / "trajectory.npz"
     np.savez_compressed(npz, times=traj.times, positions=traj.positions, curvature=traj.curvature,
-                        kinetic=traj.kinetic, iterations=traj.iterations,
+                        kinetic=traj.kinetic, iterations=traj.iterations, step_times=traj.step_times,
+                        step_tip=traj.step_tip, step_kinetic=traj.step_kinetic,
                         **({"interpolated": traj.interpolated} if traj.interpolated is not None else {}))
     files.append(npz)
     (folder / "vtk").mkdir()
@@ -43,10 +44,12 @@ def write_trajectory(scene, traj, folder: Path, images: bool = True) -> list[Pat
         p = folder / "vtk" / f"frame_{k:04d}.vtu"
         meshio.write(p, meshio.Mesh(pts, [("line", cells)]), binary=True)
         files.append(p)
-    tip = traj.positions[:, 0, -1, :]
+    ts = traj.step_times if traj.step_times is not None else traj.times
+    tip = traj.step_tip[:, 0] if traj.step_tip is not None else traj.positions[:, 0, -1, :]
+    kin = traj.step_kinetic if traj.step_kinetic is not None else traj.kinetic
     fig, ax = plt.subplots(figsize=(6, 3.5))
     for c, name in enumerate("xyz"):
-        ax.plot(traj.times, tip[:, c] * 100, label=name)
+        ax.plot(ts, tip[:, c] * 100, label=name)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("tip position [cm]")
     ax.set_title(scene.description, fontsize=8)
@@ -57,7 +60,7 @@ def write_trajectory(scene, traj, folder: Path, images: bool = True) -> list[Pat
     plt.close(fig)
     files.append(p)
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.semilogy(traj.times, np.maximum(traj.kinetic.sum(axis=1), 1e-300))
+    ax.semilogy(ts, np.maximum(kin.sum(axis=1), 1e-300))
     ax.set_xlabel("t [s]")
     ax.set_ylabel("kinetic energy [J]")
     fig.tight_layout()

@@ -55,6 +55,7 @@ class Scene:
     schedule: Schedule
     description: str
     strand: Strand | None = None
+    info: dict = field(default_factory=dict)  # scene-specific extras (e.g. the prescribed support path)
 
     @property
     def n_steps(self) -> int:
@@ -74,6 +75,9 @@ class Trajectory:
     iterations: np.ndarray
     final_state: RodState
     interpolated: np.ndarray | None = field(default=None)  # (T, M, N+1, 3) strand fibres of guide 0
+    step_times: np.ndarray | None = None  # (n_steps + 1,) s, every step
+    step_tip: np.ndarray | None = None  # (n_steps + 1, F, 3) m, tip positions at every step
+    step_kinetic: np.ndarray | None = None  # (n_steps + 1, F) J, kinetic energy at every step
 
 
 def _hair(length, n_segments, diameter=70e-6, **kw) -> RodModel:
@@ -180,7 +184,6 @@ def buckling(n_segments: int = 40, dt: float = 4e-3, duration: float = 1.0, leng
     the first 20 %) is applied; a small mid-span transverse force over the first 10 % triggers the
     instability. The tip may rotate (its moment is prescribed)."""
     m = _hair(length, n_segments, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
-    GJ = m.stiffness[0, 2]
     EI = m.stiffness[0, 0]
     torque = 4 * np.pi * EI / length  # ~1.4x the clamped-clamped Greenhill moment 8.99 EI / L
     speed = shortening * length / (0.75 * duration)
@@ -279,10 +282,9 @@ def moving_support(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
 
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
     strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
-    sc = Scene("moving-support", m, initial_state(m), opts, dt, duration, schedule,
-               "strand under gravity on a support moving along a 45 degree arc of radius 30 cm (seed fig. 3.24)", strand)
-    object.__setattr__(sc, "support_angle", angle)
-    return sc
+    return Scene("moving-support", m, initial_state(m), opts, dt, duration, schedule,
+                 "strand under gravity on a support moving along a 45 degree arc of radius 30 cm (seed fig. 3.24)",
+                 strand, info={"support_angle": angle, "arc_centre": center, "arc_radius": arc_radius})
 
 
 SCENES = {
@@ -334,9 +336,13 @@ def run_scene(scene: Scene, record_every: int = 1, progress: Callable[[int, int]
             interp.append(interpolate_strand(scene.strand, state.positions[0], state.frames[0], arc))
 
     _interp(st)
+    s_t, s_tip, s_kin = [st.time], [st.tip_position], [kin[0]]
     for i in range(1, n + 1):
         st, it = _advance(solver, scene, st, scene.dt, max_halvings)
         its.append(it)
+        s_t.append(st.time)
+        s_tip.append(st.tip_position)
+        s_kin.append(kinetic_energy(scene.model, st))
         if i % record_every == 0 or i == n:
             times.append(st.time)
             pos.append(st.positions)
@@ -346,4 +352,4 @@ def run_scene(scene: Scene, record_every: int = 1, progress: Callable[[int, int]
         if progress is not None:
             progress(i, n)
     return Trajectory(np.array(times), np.array(pos), np.array(curv), np.array(kin), np.array(its), st,
-                      np.array(interp) if interp else None)
+                      np.array(interp) if interp else None, np.array(s_t), np.array(s_tip), np.array(s_kin))

@@ -223,6 +223,7 @@ class FitProblem:
     skin_vertices: np.ndarray
     skin_areas: np.ndarray
     mask_surface: np.ndarray
+    mask_contact: np.ndarray
     shell_vertices: np.ndarray
     approach: np.ndarray
     penalty: float
@@ -380,18 +381,79 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
     return FitProblem(
         face=face, landmarks=lm, placement=placement, mask=placed, options=options, crop_face_ids=crop_face_ids,
         n_tissue=nt, tissue_triangles=skin_tri, model=model, skin_vertices=skin, skin_areas=areas,
-        mask_surface=mt.boundary_triangles + nt, shell_vertices=placed.shell_vertices + nt, approach=approach,
+        mask_surface=mt.boundary_triangles + nt, mask_contact=placed.contact_triangles + nt, shell_vertices=placed.shell_vertices + nt, approach=approach,
         penalty=penalty, airway=airway, tissue_edges=tissue.edges, setup_seconds=time.perf_counter() - t0)
 
 
-def _contact_terms(problem: FitProblem, rest_shell: np.ndarray):
-    from headsim.solvers.contact import PlaneContact
+class AxialContact:
+    """Skin vertices against the cushion's skin-side surface seen along the approach axis.
 
+    Built on :class:`headsim.solvers.PlaneContact` (lagged contact planes, penalty
+    ``E = sum kappa a_c max(0, -g_c)^2 / 2``): every skin vertex whose line along the approach axis
+    meets the cushion's skin-side surface (the seed's heightmap view of the two bodies, Heinze
+    §3.3.1) keeps that triangle, its barycentric point and its outward normal as its contact plane,
+    *whether or not it touches yet* -- the ``max(0, .)`` makes untouched ones free -- so contacts
+    about to form are already in the Newton system and a force-controlled solve from first contact
+    converges. :meth:`update` re-casts the lines from the current positions between Newton solves
+    and reports a change when a penetrating vertex's gap moves by more than ``tolerance`` (m).
+    """
+
+    def __new__(cls, *args, **kwargs):
+        from headsim.solvers.contact import PlaneContact
+
+        class _Axial(PlaneContact):
+            def update(self, x, u):
+                return _axial_update(self, x, u)
+
+        obj = _Axial(*args, direction="naive", **kwargs)
+        return obj
+
+
+def _axial_update(c, x, u) -> bool:
+    from headsim.collide import TriangleBVH
+
+    a = c.axis_of_approach
+    tris = c.master_triangles
+    y = x
+    tree = TriangleBVH(y, tris) if c._tree is None else c._tree
+    if c._tree is None:
+        c._tree = tree
+    else:
+        tree.refit(y)
+    xs = x[c.slave_vertices]
+    behind = 0.05
+    hits = tree.intersect_rays(xs + behind * a, np.broadcast_to(-a, xs.shape).copy())
+    tri_n = hits.normal
+    ok = hits.hit & (np.einsum("ij,j->i", tri_n, a) > 0.2)
+    old_gaps = None
+    if len(c.active):
+        old_gaps = np.full(len(c.slave_vertices), np.inf)
+        old_gaps[c.active] = c._gaps(x, u)
+    idx = np.flatnonzero(ok)
+    c.active = idx
+    c.tri_vertices = tris[hits.triangle[idx]]
+    c.weights = hits.barycentric[idx]
+    c.normals = tri_n[idx]
+    if old_gaps is None:
+        return True
+    new_gaps = np.full(len(c.slave_vertices), np.inf)
+    new_gaps[idx] = c._gaps(x, u)
+    pen = (np.minimum(old_gaps, new_gaps) < 0)
+    if not pen.any():
+        return False
+    diff = np.abs(np.where(np.isfinite(old_gaps) & np.isfinite(new_gaps), new_gaps - old_gaps, np.inf))[pen]
+    depth = float(-np.min(np.minimum(old_gaps, new_gaps)[pen]))
+    return bool(np.max(diff) > max(c.tolerance, 1e-3 * depth))
+
+
+def _contact_terms(problem: FitProblem, rest_shell: np.ndarray):
     p = problem
     e_shell = max(p.mask.material.youngs_modulus, p.options.tissue_modulus)
     k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
-    contact = PlaneContact(p.skin_vertices, p.skin_areas, p.mask_surface, p.penalty, direction="consistent",
-                           slave_edges=p.tissue_edges)
+    contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty)
+    contact.axis_of_approach = p.approach
+    contact._tree = None
+    contact.tolerance = 1e-8
     attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, driver=0)
     return contact, attach
 
@@ -443,9 +505,7 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
     try:
         if warm_start is None:
             # cold start: push the mask in by ``preload`` under displacement control, then release
-            pre, _ = _solve(p, [RigidDriver(axis, displacement=p.options.preload)], None, np.zeros(1), force)
-            x0, u0 = pre.positions, pre.driver_displacement
-            iters, updates = pre.newton_iterations, pre.contact_updates
+            x0, u0 = None, np.zeros(1)
         else:
             if warm_start.positions.shape != p.model.rest_positions.shape:
                 raise ParameterError("warm_start belongs to a different fit problem")

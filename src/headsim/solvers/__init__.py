@@ -2,6 +2,7 @@
 
 # deformable-body solver (issue 5): mass-spring-damper, FEM, integrators, contact
 from headsim.solvers.contact import (  # noqa: E402
+    DriverAttachment,
     PlaneContact,
     QuasiStaticOptions,
     QuasiStaticResult,
@@ -30,7 +31,7 @@ from headsim.solvers.newton import NewtonOptions, minimize_newton  # noqa: E402
 from headsim.solvers.state import BodyState  # noqa: E402
 
 __all__ = [
-    "BodyState", "ExitPoints", "ExplicitEuler", "FemModel", "ImplicitEuler", "MassSpringModel", "Material",
+    "BodyState", "DriverAttachment", "ExitPoints", "ExplicitEuler", "FemModel", "ImplicitEuler", "MassSpringModel", "Material",
     "NewtonOptions", "PlaneContact", "QuasiStaticOptions", "QuasiStaticResult", "RigidDriver", "STANDARD_GRAVITY",
     "SeedCollisionForce", "SphereObstacle", "SymplecticEuler", "combine_mass_spring", "critical_time_step",
     "exit_points", "fem_from_tetmesh", "mass_spring_from_tetmesh", "minimize_newton", "simulate",

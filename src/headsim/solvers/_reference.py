@@ -44,3 +44,40 @@ def finite_difference_gradient(fun, x, h=1e-7):
             xm[i, c] -= h
             g[i, c] = (fun(xp) - fun(xm)) / (2 * h)
     return g
+
+
+def bfs_propagate_reference(positions, vertex_ids, colliding, assigned, depth, direction, neighbours):
+    """Pure-Python level-synchronous BFS of Heinze eqs. 3.12-3.13 (variant 1); returns new arrays.
+
+    neighbours : list of lists of local ids (springs). Same contract as the Numba kernel
+    :func:`headsim.solvers._kernels.contact.bfs_propagate`.
+    """
+    assigned = assigned.copy()
+    depth = depth.copy()
+    direction = direction.copy()
+    level = [i for i in range(len(vertex_ids)) if assigned[i]]
+    queued = set(level)
+    while level:
+        nxt = []
+        for a in level:
+            for b in neighbours[a]:
+                if colliding[b] and b not in queued:
+                    queued.add(b)
+                    nxt.append(b)
+        for p in nxt:
+            xp = positions[vertex_ids[p]]
+            ws, ds, rs = 0.0, 0.0, np.zeros(3)
+            for q in neighbours[p]:
+                if not assigned[q]:
+                    continue
+                diff = positions[vertex_ids[q]] - xp
+                w = 1.0 / np.linalg.norm(diff)  # eq. 3.10
+                ds += w * (diff @ direction[q] + depth[q])  # eq. 3.12
+                rs += w * direction[q]  # eq. 3.13
+                ws += w
+            depth[p] = ds / ws
+            direction[p] = rs / np.linalg.norm(rs)
+        for p in nxt:
+            assigned[p] = True
+        level = nxt
+    return assigned, depth, direction

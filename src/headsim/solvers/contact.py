@@ -33,8 +33,17 @@ displacements of a previous solution) and returns per-vertex contact forces and 
 
 Mask use (next issue): face tissue = FEM model with fixed bone vertices; cushion = deformable FEM
 body in the same model (several bodies share one model, ``body`` ids); shell = rigid surface on one
-driver along the strap axis with the strap force; ``PlaneContact`` between skin and cushion, and
-between the cushion and the shell (or glue the cushion to the shell by fixing it to the driver).
+driver along the strap axis with the strap force; ``PlaneContact`` between skin and cushion
+(``margin`` > 0 so that contacts about to close are seen before the first Newton step), and the
+cushion glued to the shell with :class:`DriverAttachment` (or a ``PlaneContact`` with the shell as
+rigid master). Warm-start a sweep over strap forces with the previous ``positions`` and
+``driver_displacement``; the contact planes live in the ``PlaneContact`` objects, so reuse them too.
+
+Limitations: frictionless; contact planes are lagged (kept from first detection unless
+``refresh_planes``), which suits small sliding; slaves must be deformable vertices (a rigid part
+touches the deformable body through ``PlaneContact`` with the rigid surface as master); a body that
+is not constrained and not yet in contact makes Newton's system singular -- start in contact or
+within ``margin``.
 """
 
 from __future__ import annotations
@@ -167,6 +176,53 @@ class SphereObstacle(ContactTerm):
         p = np.zeros(len(x))
         p[self.vertices] = self.penalty * d
         return p
+
+
+@dataclass(eq=False)
+class DriverAttachment(ContactTerm):
+    """Vertices glued to a rigid driver: E = k/2 sum |x_i - (X_i + u axis)|^2 (stiff springs).
+
+    Lets a deformable part (a mask cushion) follow a force-driven rigid part (the shell) it is glued
+    to. vertices : (k,) int64; anchor : (k, 3) m, their positions at u = 0; driver : RigidDriver index;
+    stiffness : N/m per vertex (choose >> the part's own stiffness, e.g. 1e3 E h).
+    """
+
+    vertices: np.ndarray
+    anchor: np.ndarray
+    driver: int
+    stiffness: float
+    axis: np.ndarray | None = None
+
+    def _offset(self, x, u):
+        return x[self.vertices] - (np.asarray(self.anchor) + u[self.driver] * self.axis)
+
+    def energy(self, x, u):
+        return 0.5 * self.stiffness * float(np.sum(self._offset(x, u) ** 2))
+
+    def gradient(self, x, u):
+        d = self.stiffness * self._offset(x, u)
+        gx = np.zeros_like(x)
+        np.add.at(gx, self.vertices, d)
+        gu = np.zeros(len(u))
+        gu[self.driver] = -float(np.sum(d @ self.axis))
+        return gx, gu
+
+    def hessian(self, x, u):
+        n_dof = 3 * len(x) + len(u)
+        k = self.stiffness
+        dof = (3 * np.asarray(self.vertices)[:, None] + np.arange(3)).ravel()
+        ud = 3 * len(x) + self.driver
+        a = np.tile(self.axis, len(self.vertices))
+        rows = np.concatenate([dof, dof, np.full(len(dof), ud), [ud]])
+        cols = np.concatenate([dof, np.full(len(dof), ud), dof, [ud]])
+        data = np.concatenate([np.full(len(dof), k), -k * a, -k * a, [k * len(self.vertices)]])
+        return sp.csr_matrix((data, (rows, cols)), shape=(n_dof, n_dof))
+
+    def vertex_forces(self, x, u):
+        return np.zeros_like(x)  # a bond, not a contact
+
+    def vertex_pressure(self, x, u):
+        return np.zeros(len(x))
 
 
 @dataclass(eq=False)

@@ -77,13 +77,28 @@ def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
 
 
 def solve_spd(a: sp.csr_matrix, b: np.ndarray, method: str, near_null: np.ndarray | None = None,
-              cg_rtol: float = 1e-6) -> np.ndarray:
-    """Solve the SPD system a x = b by SuperLU ("direct") or pyamg SA-preconditioned CG ("amg-cg")."""
+              cg_rtol: float = 1e-6, cache: dict | None = None) -> np.ndarray:
+    """Solve the SPD system a x = b by SuperLU ("direct") or pyamg SA-preconditioned CG ("amg-cg").
+
+    With a ``cache`` dict, the AMG hierarchy of an earlier matrix of the same size is reused as the
+    preconditioner (Newton's Hessians change little between iterations); it is rebuilt when CG needs
+    more than 60 iterations.
+    """
     if method == "direct":
         return spla.spsolve(a.tocsc(), b, permc_spec="MMD_AT_PLUS_A")
     import pyamg
 
-    ml = pyamg.smoothed_aggregation_solver(a.tocsr(), B=near_null, symmetry="symmetric", max_coarse=500)
+    a = a.tocsr()
+    ml = cache.get("amg") if cache is not None else None
+    if ml is not None and ml.levels[0].A.shape == a.shape:
+        count = [0]
+        x, info = spla.cg(a, b, rtol=cg_rtol, maxiter=60, M=ml.aspreconditioner(cycle="V"),
+                          callback=lambda _: count.__setitem__(0, count[0] + 1))
+        if info == 0:
+            return x
+    ml = pyamg.smoothed_aggregation_solver(a, B=near_null, symmetry="symmetric", max_coarse=500)
+    if cache is not None:
+        cache["amg"] = ml
     x = ml.solve(b, tol=cg_rtol, accel="cg", maxiter=500)
     return np.asarray(x)
 
@@ -126,6 +141,7 @@ def minimize_newton(
     if options.force_tolerance is not None:
         tol = max(tol, options.force_tolerance)
     gnorm = g0
+    amg_cache: dict = {}
     for it in range(options.max_iterations):
         if gnorm <= tol:
             return NewtonResult(z, it, gnorm, e, method)
@@ -136,7 +152,7 @@ def minimize_newton(
             reg = options.regularization * (float(np.mean(np.abs(diag))) or 1.0)
             h = h + sp.identity(len(idx), format="csr") * reg
             with np.errstate(all="ignore"):
-                dz = solve_spd(h, -g, method, nn, options.cg_rtol)
+                dz = solve_spd(h, -g, method, nn, options.cg_rtol, amg_cache)
             slope = float(g @ dz)
             if np.isfinite(dz).all() and slope < 0:
                 break

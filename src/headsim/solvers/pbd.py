@@ -398,9 +398,13 @@ class PBDSolver:
         self._lam_e = np.zeros(len(edges))
         self._lam_v = np.zeros(model.n_bodies)
         self._grad = np.zeros((model.n_particles, 3))
+        self._vertex_body = np.full(model.n_particles, -1, dtype=np.int64)
+        for k in range(3):
+            self._vertex_body[model.volume_triangles[:, k]] = model.volume_body
         self._vol = np.zeros(model.n_bodies)
         self._den = np.zeros(model.n_bodies)
         self._gravity = np.asarray(options.gravity)
+        self._has_external_force = bool(np.any(self._gravity != 0.0))
         if model.particle_contacts:
             self._contact = np.zeros((model.n_particles, 3))
             self._cells = np.zeros(model.n_particles, dtype=np.int64)
@@ -436,8 +440,8 @@ class PBDSolver:
                 w_volume = self._w.copy()
                 w_volume[touching] = 0.0
         if m.n_bodies:
-            _k.project_volume(m.volume_triangles, m.volume_body, m.volume_target, w_volume, at_v,
-                              1.0, self._lam_v, self._grad, self._vol, self._den, p)
+            _k.project_volume(m.volume_triangles, m.volume_body, self._vertex_body, m.volume_target, w_volume,
+                              at_v, 1.0, self._lam_v, self._grad, self._vol, self._den, p)
         if len(m.plane_points):
             _k.project_planes(m.plane_points, m.plane_normals, m.collision_radius, self._w, p)
 
@@ -485,7 +489,10 @@ class PBDSolver:
         dt = o.dt
         x = state.positions
         with np.errstate(over="ignore", invalid="ignore"):  # non-finite values are caught by _check
-            v = state.velocities + dt * self.external_acceleration(x)
+            if self._has_external_force:
+                v = state.velocities + dt * self.external_acceleration(x)
+            else:
+                v = state.velocities.copy()
             v[self.model.fixed] = 0.0
             p = x + dt * v
             self._lam_e[:] = 0.0

@@ -56,6 +56,7 @@ __all__ = [
     "StepReport",
     "ImplicitRodSolver",
     "initial_state",
+    "seed_startup_derivatives",
     "straight_frame",
     "kinetic_energy",
     "amplification_eigenvalues",
@@ -387,6 +388,10 @@ class RodSolverOptions:
     tolerance : max-norm of the residual, each component scaled by its characteristic size
     max_iterations : Newton iterations per step; armijo : iota of eq. 3.172; max_halvings : of mu
     raise_on_failure : raise ConvergenceError when a fibre does not converge
+    startup : first step of a fresh state: "backward_euler" (default; needs no derivatives and finds
+      a consistent contact force n) or "seed" (Sobottka Algorithm 1, i = 0: d_s x from the nodal
+      values (central differences), d_t x = M^-1 (P d_s x + g) for v, omega, kappa and d_t n = 0,
+      then the chosen coefficients; needs a consistent n in the start state)
     """
 
     coefficients: GeneralizedAlpha = field(default_factory=lambda: GeneralizedAlpha.from_rho_inf(0.5, 1.0))
@@ -395,10 +400,13 @@ class RodSolverOptions:
     armijo: float = 1e-4
     max_halvings: int = 12
     raise_on_failure: bool = True
+    startup: str = "backward_euler"
 
     def __post_init__(self):
         if not (self.tolerance > 0 and self.max_iterations >= 1 and 0 < self.armijo < 0.5):
             raise ParameterError("tolerance > 0, max_iterations >= 1 and 0 < armijo < 0.5 required")
+        if self.startup not in ("backward_euler", "seed"):
+            raise ParameterError(f"startup must be 'backward_euler' or 'seed', got {self.startup!r}")
 
 
 @dataclass(frozen=True)
@@ -474,6 +482,9 @@ class ImplicitRodSolver:
         if state.x.shape != (F, nn, 12):
             raise ParameterError(f"state has shape {state.x.shape}, model needs {(F, nn, 12)}")
         startup = not state.derivatives_valid
+        if startup and self.options.startup == "seed":
+            state = seed_startup_derivatives(model, state, loads)
+            startup = False
         tip_mode = _TIP_MODES[boundary.tip]
         par = self._pack(model, dt, startup, tip_mode)
         fdist = np.broadcast_to(model.rho_area[:, None, None] * loads.gravity[None, None, :], (F, nn, 3)).copy()
@@ -519,6 +530,35 @@ class ImplicitRodSolver:
         integ(np.ascontiguousarray(R[:, 0]), np.ascontiguousarray(x[:, :, 6:9]),
                                   np.ascontiguousarray(model.segment_length), frames, r0, pos)
         return RodState(x, xt, xs, g, frames, pos, state.time + dt, True), report
+
+
+def seed_startup_derivatives(model: RodModel, state: RodState, loads: RodLoads = RodLoads()) -> RodState:
+    """The seed's start-up rule (Algorithm 1, i = 0; eq. 3.171): d_s x by second-order differences
+    of the nodal values, d_t x = M^-1 (P d_s x + g(x)) for the v, omega and kappa rows and d_t n = 0.
+    Loads of the first step stand in for the (unknown) loads before it."""
+    F, nn = model.n_fibres, model.n_nodes
+    xs = np.gradient(state.x, axis=1) / model.segment_length[:, None, None]
+    g = np.empty_like(state.x)
+    xt = np.zeros_like(state.x)
+    fglob = model.rho_area[:, None, None] * loads.gravity[None, None, :] + (
+        0.0 if loads.distributed_force is None else np.asarray(loads.distributed_force, float))
+    fglob = np.broadcast_to(fglob, (F, nn, 3))
+    zero = np.zeros(3)
+    for f in range(F):
+        rhoI, K = model.rho_inertia[f], model.stiffness[f]
+        for j in range(nn):
+            floc = state.frames[f, j].T @ fglob[f, j]
+            _k.node_g(state.x[f, j], floc, zero, model.natural_curvature[f, j], model.natural_curvature_ds[f, j],
+                      model.rho_area[f], rhoI, K, g[f, j])
+            # P xs + g  (rows: lin <- n', ang <- K kappa', compat <- omega', constraint <- v')
+            q = g[f, j].copy()
+            q[0:3] += xs[f, j, 9:12]
+            q[3:6] += K * xs[f, j, 6:9]
+            q[6:9] += xs[f, j, 3:6]
+            xt[f, j, 0:3] = q[0:3] / model.rho_area[f]
+            xt[f, j, 3:6] = q[3:6] / rhoI
+            xt[f, j, 6:9] = q[6:9]
+    return RodState(state.x, xt, xs, g, state.frames, state.positions, state.time, True)
 
 
 def kinetic_energy(model: RodModel, state: RodState) -> np.ndarray:

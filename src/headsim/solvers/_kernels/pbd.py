@@ -141,55 +141,58 @@ def body_volumes(p, triangles, triangle_body, n_bodies, out):
 
 
 @njit(cache=True)
-def project_volume(triangles, triangle_body, target, w, alpha_tilde, stiffness, lam, scratch_grad,
+def project_volume(triangles, triangle_body, vertex_body, target, w, alpha_tilde, stiffness, lam, scratch_grad,
                    scratch_vol, scratch_denom, p):
     """Project every body's volume constraint once, in place (Monkin 2016 §3: grad_i C = sum over the
     triangles at i of the cross product of the other two vertices, in order, / 6).
 
-    triangles (m, 3) int64 outward-oriented; triangle_body (m,) int64; target (k,) m³; w (n,) 1/kg;
-    alpha_tilde: compliance / dt² (compliance in m⁶/J), 0 for a hard constraint; stiffness PBD factor;
-    lam (k,) multipliers, updated; scratch_grad (n, 3), scratch_vol (k,), scratch_denom (k,) work arrays;
-    p (n, 3) m, updated. A vertex must belong to one body only.
+    triangles (m, 3) int64 outward-oriented; triangle_body (m,) int64; vertex_body (n,) int64 body of each
+    particle (-1: none; a particle belongs to one body only); target (k,) m³; w (n,) 1/kg; alpha_tilde:
+    compliance / dt² (compliance in m⁶/J), 0 for a hard constraint; stiffness PBD factor; lam (k,)
+    multipliers, updated; scratch_grad (n, 3), scratch_vol (k,), scratch_denom (k,) work arrays;
+    p (n, 3) m, updated. Volume and gradient are accumulated in one pass over the triangles.
     """
     nb = target.shape[0]
-    body_volumes(p, triangles, triangle_body, nb, scratch_vol)
+    for b in range(nb):
+        scratch_vol[b] = 0.0
+        scratch_denom[b] = 0.0
     scratch_grad[:, :] = 0.0
-    vertex_body = np.full(p.shape[0], -1, dtype=np.int64)
     for t in range(triangles.shape[0]):
         a = triangles[t, 0]
         b = triangles[t, 1]
         c = triangles[t, 2]
-        bd = triangle_body[t]
-        vertex_body[a] = bd
-        vertex_body[b] = bd
-        vertex_body[c] = bd
-        # d/da = b x c, d/db = c x a, d/dc = a x b  (each / 6)
-        scratch_grad[a, 0] += (p[b, 1] * p[c, 2] - p[b, 2] * p[c, 1]) / 6.0
-        scratch_grad[a, 1] += (p[b, 2] * p[c, 0] - p[b, 0] * p[c, 2]) / 6.0
-        scratch_grad[a, 2] += (p[b, 0] * p[c, 1] - p[b, 1] * p[c, 0]) / 6.0
+        # d/da = b x c, d/db = c x a, d/dc = a x b  (each / 6); volume = a . (b x c) / 6
+        bcx = p[b, 1] * p[c, 2] - p[b, 2] * p[c, 1]
+        bcy = p[b, 2] * p[c, 0] - p[b, 0] * p[c, 2]
+        bcz = p[b, 0] * p[c, 1] - p[b, 1] * p[c, 0]
+        scratch_vol[triangle_body[t]] += (p[a, 0] * bcx + p[a, 1] * bcy + p[a, 2] * bcz) / 6.0
+        scratch_grad[a, 0] += bcx / 6.0
+        scratch_grad[a, 1] += bcy / 6.0
+        scratch_grad[a, 2] += bcz / 6.0
         scratch_grad[b, 0] += (p[c, 1] * p[a, 2] - p[c, 2] * p[a, 1]) / 6.0
         scratch_grad[b, 1] += (p[c, 2] * p[a, 0] - p[c, 0] * p[a, 2]) / 6.0
         scratch_grad[b, 2] += (p[c, 0] * p[a, 1] - p[c, 1] * p[a, 0]) / 6.0
         scratch_grad[c, 0] += (p[a, 1] * p[b, 2] - p[a, 2] * p[b, 1]) / 6.0
         scratch_grad[c, 1] += (p[a, 2] * p[b, 0] - p[a, 0] * p[b, 2]) / 6.0
         scratch_grad[c, 2] += (p[a, 0] * p[b, 1] - p[a, 1] * p[b, 0]) / 6.0
-    for b in range(nb):
-        scratch_denom[b] = 0.0
-    for i in range(p.shape[0]):
-        bd = vertex_body[i]
-        if bd >= 0:
-            g = scratch_grad[i]
-            scratch_denom[bd] += w[i] * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
-    dl = np.zeros(nb)
-    for b in range(nb):
-        if scratch_denom[b] + alpha_tilde > 0.0:
-            c = scratch_vol[b] - target[b]
-            dl[b] = stiffness * (-c - alpha_tilde * lam[b]) / (scratch_denom[b] + alpha_tilde)
-            lam[b] += dl[b]
     for i in range(p.shape[0]):
         bd = vertex_body[i]
         if bd >= 0 and w[i] > 0.0:
-            f = w[i] * dl[bd]
+            g0 = scratch_grad[i, 0]
+            g1 = scratch_grad[i, 1]
+            g2 = scratch_grad[i, 2]
+            scratch_denom[bd] += w[i] * (g0 * g0 + g1 * g1 + g2 * g2)
+    for b in range(nb):
+        dl = 0.0
+        if scratch_denom[b] + alpha_tilde > 0.0:
+            c = scratch_vol[b] - target[b]
+            dl = stiffness * (-c - alpha_tilde * lam[b]) / (scratch_denom[b] + alpha_tilde)
+            lam[b] += dl
+        scratch_denom[b] = dl  # reused: the multiplier step of body b
+    for i in range(p.shape[0]):
+        bd = vertex_body[i]
+        if bd >= 0 and w[i] > 0.0:
+            f = w[i] * scratch_denom[bd]
             p[i, 0] += f * scratch_grad[i, 0]
             p[i, 1] += f * scratch_grad[i, 1]
             p[i, 2] += f * scratch_grad[i, 2]

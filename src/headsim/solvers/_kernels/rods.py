@@ -380,7 +380,6 @@ def evaluate(x, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
     theta = np.empty(3)
     fl = np.empty(3)
     ll = np.zeros(3)
-    zero3 = np.zeros(3)
     Jl = np.empty((3, 3))
     E = np.empty((3, 3))
     Jr = np.empty((3, 3))
