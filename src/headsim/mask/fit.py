@@ -57,6 +57,10 @@ from headsim.mesh.tet import REGION_CUSHION, REGION_SHELL, REGION_TISSUE
 
 #: Largest strap force accepted, N (CPAP/NIV strap tensions are a few to ~30 N; 200 N is absurd).
 MAX_STRAP_FORCE = 200.0
+EXACT = True
+#: outer contact loop stops when refreshing the planes moves less than this fraction of F
+UPDATE_TOL = 2e-4
+MAXIT = 100
 #: Effective homogeneous facial soft-tissue modulus, Pa (module doc).
 TISSUE_MODULUS = 30e3
 TISSUE_POISSON = 0.45
@@ -425,35 +429,48 @@ def _axial_update(c, x, u) -> bool:
     hits = tree.intersect_rays(xs + behind * a, np.broadcast_to(-a, xs.shape).copy())
     tri_n = hits.normal
     ok = hits.hit & (np.einsum("ij,j->i", tri_n, a) > 0.2)
+    n_s = len(c.slave_vertices)
+    tri = np.zeros((n_s, 3), np.int64)
+    wts = np.zeros((n_s, 3))
+    nrm = np.zeros((n_s, 3))
+    has = ok.copy()
+    tri[ok], wts[ok], nrm[ok] = tris[hits.triangle[ok]], hits.barycentric[ok], tri_n[ok]
     old_gaps = None
     if len(c.active):
-        old_gaps = np.full(len(c.slave_vertices), np.inf)
+        old_gaps = np.full(n_s, np.inf)
         old_gaps[c.active] = c._gaps(x, u)
-    idx = np.flatnonzero(ok)
+        # a vertex in contact keeps the plane of its first contact (as PlaneContact does): refreshing
+        # it would let vertices at cushion edges flip between planes forever
+        keep = c.active[old_gaps[c.active] < 0]
+        pos = {a: i for i, a in enumerate(c.active.tolist())}
+        ii = np.array([pos[a] for a in keep.tolist()], dtype=np.int64)
+        if len(keep):
+            tri[keep], wts[keep], nrm[keep] = c.tri_vertices[ii], c.weights[ii], c.normals[ii]
+            has[keep] = True
+    idx = np.flatnonzero(has)
     c.active = idx
-    c.tri_vertices = tris[hits.triangle[idx]]
-    c.weights = hits.barycentric[idx]
-    c.normals = tri_n[idx]
+    c.tri_vertices = tri[idx]
+    c.weights = wts[idx]
+    c.normals = nrm[idx]
     if old_gaps is None:
         return True
     new_gaps = np.full(len(c.slave_vertices), np.inf)
     new_gaps[idx] = c._gaps(x, u)
-    pen = (np.minimum(old_gaps, new_gaps) < 0)
-    if not pen.any():
-        return False
-    diff = np.abs(np.where(np.isfinite(old_gaps) & np.isfinite(new_gaps), new_gaps - old_gaps, np.inf))[pen]
-    depth = float(-np.min(np.minimum(old_gaps, new_gaps)[pen]))
-    return bool(np.max(diff) > max(c.tolerance, 1e-3 * depth))
+    # contact force that the refreshed planes move (N): penetrations old vs new, per vertex
+    d_old = np.where(np.isfinite(old_gaps), np.maximum(-old_gaps, 0.0), 0.0)
+    d_new = np.where(np.isfinite(new_gaps), np.maximum(-new_gaps, 0.0), 0.0)
+    moved = float(np.sum(c.penalty * c.slave_areas * np.abs(d_new - d_old)))
+    return moved > c.tolerance
 
 
-def _contact_terms(problem: FitProblem, rest_shell: np.ndarray):
+def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float):
     p = problem
     e_shell = max(p.mask.material.youngs_modulus, p.options.tissue_modulus)
     k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
     contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty)
     contact.axis_of_approach = p.approach
     contact._tree = None
-    contact.tolerance = 1e-8
+    contact.tolerance = tolerance
     attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, driver=0)
     return contact, attach
 
@@ -463,9 +480,13 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float):
 
     p = problem
     rest_shell = p.model.rest_positions[p.shell_vertices]
-    contact, attach = _contact_terms(p, rest_shell)
+    contact, attach = _contact_terms(p, rest_shell, UPDATE_TOL * force_scale)
     # per-dof residual tolerance: the imbalance of the whole mask is at most (its dofs) x this
-    opts = QuasiStaticOptions(max_contact_updates=p.options.max_contact_updates,
+    from headsim.solvers.newton import NewtonOptions
+
+    opts = QuasiStaticOptions(newton=NewtonOptions(relative_tolerance=1e-10, try_exact_hessian=EXACT,
+                                                   max_iterations=MAXIT),
+                              max_contact_updates=p.options.max_contact_updates,
                               force_tolerance=1e-7 * force_scale)
     res = solve_quasi_static(p.model, [contact, attach], drivers, initial_positions=x0, initial_drivers=u0,
                              options=opts)

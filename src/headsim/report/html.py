@@ -17,6 +17,13 @@ from typing import Sequence
 
 import numpy as np
 
+
+def _usual_permissions(path) -> None:
+    """mkstemp creates 0600 files; give the permissions a normal file would get (0666 & ~umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
+
 __all__ = ["MeshLayer", "mesh_figure", "write_html_report", "numbers_table"]
 
 
@@ -122,6 +129,7 @@ def write_html_report(path: str | os.PathLike, *, title: str, figures: Sequence[
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write("".join(parts))
+        _usual_permissions(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

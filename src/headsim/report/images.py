@@ -14,6 +14,13 @@ from typing import Sequence
 
 import numpy as np
 
+
+def _usual_permissions(path) -> None:
+    """mkstemp creates 0600 files; give the permissions a normal file would get (0666 & ~umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
+
 __all__ = ["render_mesh", "render_panels"]
 
 _VIEWS = {
@@ -103,6 +110,7 @@ def render_panels(path: str | os.PathLike, panels: Sequence[dict], *, title: str
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=dpi, format="png")
+        _usual_permissions(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -40,7 +40,7 @@ class NewtonOptions:
     relative_tolerance: float = 1e-8
     max_iterations: int = 100
     linear_solver: str = "auto"
-    amg_threshold: int = 60_000
+    amg_threshold: int = 20_000
     cg_rtol: float = 1e-6
     regularization: float = 1e-10
     max_line_search: int = 40
@@ -96,7 +96,8 @@ def solve_spd(a: sp.csr_matrix, b: np.ndarray, method: str, near_null: np.ndarra
                           callback=lambda _: count.__setitem__(0, count[0] + 1))
         if info == 0:
             return x
-    ml = pyamg.smoothed_aggregation_solver(a, B=near_null, symmetry="symmetric", max_coarse=500)
+    ml = pyamg.smoothed_aggregation_solver(a, B=near_null, symmetry="symmetric", max_coarse=500, max_levels=20,
+                                           coarse_solver="splu")
     if cache is not None:
         cache["amg"] = ml
     x = ml.solve(b, tol=cg_rtol, accel="cg", maxiter=500)

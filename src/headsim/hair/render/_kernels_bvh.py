@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-_STACK = 64
+_STACK = 128
 
 
 @njit(cache=True)

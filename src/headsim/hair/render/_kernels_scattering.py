@@ -74,8 +74,8 @@ def cubic_coefficients(p, n1):
 
 
 @njit(cache=True)
-def _cubic_roots(a3, a1, a0, out):
-    """Real roots of a3 x³ + a1 x + a0 = 0 (a3 ≠ 0) into ``out``; returns how many."""
+def _cubic_roots(a3, a1, a0):
+    """Real roots of a3 x³ + a1 x + a0 = 0 (a3 ≠ 0): (count, r0, r1, r2)."""
     P = a1 / a3
     Q = a0 / a3
     disc = 0.25 * Q * Q + P * P * P / 27.0
@@ -83,18 +83,33 @@ def _cubic_roots(a3, a1, a0, out):
         s = math.sqrt(disc)
         u = -0.5 * Q + s
         v = -0.5 * Q - s
-        out[0] = math.copysign(abs(u) ** (1.0 / 3.0), u) + math.copysign(abs(v) ** (1.0 / 3.0), v)
-        return 1
+        r = math.copysign(abs(u) ** (1.0 / 3.0), u) + math.copysign(abs(v) ** (1.0 / 3.0), v)
+        return 1, r, 0.0, 0.0
     if P == 0.0:
-        out[0] = 0.0
-        return 1
+        return 1, 0.0, 0.0, 0.0
     m = 2.0 * math.sqrt(-P / 3.0)
     arg = 3.0 * Q / (P * m)
     arg = min(1.0, max(-1.0, arg))
     t = math.acos(arg) / 3.0
-    for k in range(3):
-        out[k] = m * math.cos(t - 2.0 * _PI * k / 3.0)
-    return 3
+    return 3, m * math.cos(t), m * math.cos(t - 2.0 * _PI / 3.0), m * math.cos(t - 4.0 * _PI / 3.0)
+
+
+@njit(cache=True, inline="always")
+def _root_term(p, g, a3, a1, n1, n2, sig, cos_tt, dmax, out):
+    if g < -0.5 * _PI or g > 0.5 * _PI:
+        return
+    h = math.sin(g)
+    cg = math.cos(g)
+    deriv = abs(a1 + 3.0 * a3 * g * g) / max(cg, 1e-12)
+    d = 1.0 / max(deriv, 1e-12)
+    if dmax > 0.0 and d > dmax:
+        d = dmax
+    f = fresnel(n1, n2, abs(g))
+    a = (1.0 - f) * (1.0 - f) * f ** (p - 1)
+    st = h / n1
+    ct = math.sqrt(max(0.0, 1.0 - st * st))
+    for ch in range(3):
+        out[ch] += 0.5 * a * math.exp(-p * sig[ch] * 2.0 * ct / cos_tt) * d
 
 
 @njit(cache=True)
@@ -111,27 +126,27 @@ def _lobe_roots_sum(p, dphi, n1, n2, sig, cos_tt, dmax, out):
     A = (1−F)² F^{p−1} (6.8, F at entry = F at the internal interfaces by Fresnel symmetry);
     T = exp(−σ_a 2 cos γ_t / cos θ_t)^p (6.9 with s_M = 2R cos γ_t, σ_a per radius)."""
     a3, a1, a0 = cubic_coefficients(p, n1)
-    roots = np.empty(3)
     base = dphi - _TWO_PI * math.floor(dphi / _TWO_PI)
-    for k in range(-1, 3):
-        target = base + _TWO_PI * k
-        nr = _cubic_roots(a3, a1, a0 - target, roots)
-        for j in range(nr):
-            g = roots[j]
-            if g < -0.5 * _PI or g > 0.5 * _PI:
-                continue
-            h = math.sin(g)
-            cg = math.cos(g)
-            deriv = abs(a1 + 3.0 * a3 * g * g) / max(cg, 1e-12)
-            d = 1.0 / max(deriv, 1e-12)
-            if dmax > 0.0 and d > dmax:
-                d = dmax
-            f = fresnel(n1, n2, abs(g))
-            a = (1.0 - f) * (1.0 - f) * f ** (p - 1)
-            st = h / n1
-            ct = math.sqrt(max(0.0, 1.0 - st * st))
-            for ch in range(3):
-                out[ch] += 0.5 * a * math.exp(-p * sig[ch] * 2.0 * ct / cos_tt) * d
+    # the cubic's range: TT (2c, 2π − 2c); TRT [π − 4c, π + 4c] ∪ [2π − φ_c', 2π + φ_c'] (local extrema)
+    c = math.asin(1.0 / n1)
+    if p == 1:
+        lo = 2.0 * c
+        hi = _TWO_PI - 2.0 * c
+    else:
+        ext = 0.0
+        if a1 > 0.0:
+            gc = math.sqrt(a1 / (-3.0 * a3))
+            ext = abs(a3 * gc ** 3 + a1 * gc)
+        lo = min(_PI - 4.0 * c, _TWO_PI - ext)
+        hi = max(_PI + 4.0 * c, _TWO_PI + ext)
+    k_lo = int(math.ceil((lo - base) / _TWO_PI - 1e-9))
+    k_hi = int(math.floor((hi - base) / _TWO_PI + 1e-9))
+    for k in range(k_lo, k_hi + 1):
+        nr, r0, r1, r2 = _cubic_roots(a3, a1, a0 - (base + _TWO_PI * k))
+        _root_term(p, r0, a3, a1, n1, n2, sig, cos_tt, dmax, out)
+        if nr == 3:
+            _root_term(p, r1, a3, a1, n1, n2, sig, cos_tt, dmax, out)
+            _root_term(p, r2, a3, a1, n1, n2, sig, cos_tt, dmax, out)
 
 
 @njit(cache=True)

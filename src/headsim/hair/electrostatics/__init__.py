@@ -1,0 +1,1 @@
+"""Electrostatic charging of hair (Sobottka 2008, ch. 4)."""

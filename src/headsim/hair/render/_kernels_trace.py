@@ -1,0 +1,217 @@
+"""Numba path tracer for fibre assemblies with the Marschner far-field BSDF (render subpackage).
+
+Per camera sample: up to ``max_scatter`` fibre scattering events (order 1 = single scattering); at every
+event next-event estimation toward each light with a shadow ray, then a new direction importance-sampled
+from the lobes' longitudinal Gaussians (defensive mixture, φ uniform); rays escaping after ≥ 1 event see
+the constant environment. Lights: ``lights`` (L, 7) rows [kind, x, y, z, r, g, b] with kind 0 =
+directional (x,y,z toward the light, rgb irradiance W/m²) and kind 1 = point (position m, rgb intensity W/sr).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from headsim.hair.render._kernels_bvh import intersect
+from headsim.hair.render._kernels_scattering import far_field, gauss
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+@njit(cache=True, inline="always")
+def _mix64(z):
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True, inline="always")
+def _rand(state):
+    state[0] += _GOLDEN
+    return float(_mix64(state[0]) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, inline="always")
+def _frame(tx, ty, tz):
+    """Unit vectors u, v ⊥ tangent t (fixed rule, so φ has an absolute origin for the elliptic TRT)."""
+    if abs(tx) < 0.9:
+        hx, hy, hz = 1.0, 0.0, 0.0
+    else:
+        hx, hy, hz = 0.0, 1.0, 0.0
+    ux = ty * hz - tz * hy
+    uy = tz * hx - tx * hz
+    uz = tx * hy - ty * hx
+    n = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux /= n
+    uy /= n
+    uz /= n
+    vx = ty * uz - tz * uy
+    vy = tz * ux - tx * uz
+    vz = tx * uy - ty * ux
+    return ux, uy, uz, vx, vy, vz
+
+
+@njit(cache=True, inline="always")
+def _angles(wx, wy, wz, tx, ty, tz, ux, uy, uz, vx, vy, vz):
+    s = wx * tx + wy * ty + wz * tz
+    s = min(1.0, max(-1.0, s))
+    return math.asin(s), math.atan2(wx * vx + wy * vy + wz * vz, wx * ux + wy * uy + wz * uz)
+
+
+@njit(cache=True)
+def _theta_pdf(prm, mixp, theta_r, th):
+    p = mixp[0] / math.pi
+    for lobe in range(3):
+        c = 2.0 * prm[1 + lobe] - theta_r
+        w = 2.0 * prm[4 + lobe]
+        mass = 0.5 * (math.erf((0.5 * math.pi - c) / (w * math.sqrt(2.0)))
+                      - math.erf((-0.5 * math.pi - c) / (w * math.sqrt(2.0))))
+        p += mixp[1 + lobe] * gauss(w, th - c) / max(mass, 1e-12)
+    return p
+
+
+@njit(cache=True)
+def _sample_theta(prm, mixp, theta_r, state):
+    u = _rand(state)
+    if u < mixp[0]:
+        return (_rand(state) - 0.5) * math.pi
+    acc = mixp[0]
+    lobe = 2
+    for k in range(3):
+        acc += mixp[1 + k]
+        if u < acc:
+            lobe = k
+            break
+    c = 2.0 * prm[1 + lobe] - theta_r
+    w = 2.0 * prm[4 + lobe]
+    for _ in range(64):
+        u1 = max(_rand(state), 1e-300)
+        u2 = _rand(state)
+        x = c + w * math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+        if abs(x) < 0.5 * math.pi:
+            return x
+    return (_rand(state) - 0.5) * math.pi
+
+
+@njit(cache=True)
+def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, env, background, max_scatter,
+                a, b, radius, left, right, bmin, bmax, start, count, out):
+    """Accumulate the mean radiance of pixel (i, j) over ``spp`` samples into ``out`` (3,).
+
+    cam (12,): position, forward, right·tan(fov_x/2), up·tan(fov_y/2)."""
+    state = np.empty(1, np.uint64)
+    lobes = np.empty((3, 3))
+    acc0 = 0.0
+    acc1 = 0.0
+    acc2 = 0.0
+    for s in range(spp):
+        state[0] = _mix64(np.uint64(seed) * np.uint64(0x100000001B3) + np.uint64((i * width + j) * spp + s))
+        px = (j + _rand(state)) / width * 2.0 - 1.0
+        py = 1.0 - (i + _rand(state)) / height * 2.0
+        dx = cam[3] + px * cam[6] + py * cam[9]
+        dy = cam[4] + px * cam[7] + py * cam[10]
+        dz = cam[5] + px * cam[8] + py * cam[11]
+        n = math.sqrt(dx * dx + dy * dy + dz * dz)
+        dx /= n
+        dy /= n
+        dz /= n
+        ox, oy, oz = cam[0], cam[1], cam[2]
+        b0 = 1.0
+        b1 = 1.0
+        b2 = 1.0
+        l0 = 0.0
+        l1 = 0.0
+        l2 = 0.0
+        skip = -1
+        for depth in range(max_scatter):
+            t, prim = intersect(ox, oy, oz, dx, dy, dz, 1e-9, np.inf, skip, False, a, b, radius, left, right,
+                                bmin, bmax, start, count)
+            if prim < 0:
+                if depth == 0:
+                    l0 += background[0]
+                    l1 += background[1]
+                    l2 += background[2]
+                else:
+                    l0 += b0 * env[0]
+                    l1 += b1 * env[1]
+                    l2 += b2 * env[2]
+                break
+            xx = ox + t * dx
+            xy = oy + t * dy
+            xz = oz + t * dz
+            tx = b[prim, 0] - a[prim, 0]
+            ty = b[prim, 1] - a[prim, 1]
+            tz = b[prim, 2] - a[prim, 2]
+            tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+            tx /= tn
+            ty /= tn
+            tz /= tn
+            ux, uy, uz, vx, vy, vz = _frame(tx, ty, tz)
+            theta_r, phi_r = _angles(-dx, -dy, -dz, tx, ty, tz, ux, uy, uz, vx, vy, vz)
+            # next-event estimation
+            for k in range(lights.shape[0]):
+                if lights[k, 0] == 0.0:
+                    wx, wy, wz = lights[k, 1], lights[k, 2], lights[k, 3]
+                    dist = np.inf
+                    e0, e1, e2 = lights[k, 4], lights[k, 5], lights[k, 6]
+                else:
+                    wx = lights[k, 1] - xx
+                    wy = lights[k, 2] - xy
+                    wz = lights[k, 3] - xz
+                    dist = math.sqrt(wx * wx + wy * wy + wz * wz)
+                    wx /= dist
+                    wy /= dist
+                    wz /= dist
+                    inv = 1.0 / (dist * dist)
+                    e0, e1, e2 = lights[k, 4] * inv, lights[k, 5] * inv, lights[k, 6] * inv
+                ts, ps = intersect(xx, xy, xz, wx, wy, wz, 1e-9, dist, prim, True, a, b, radius, left, right,
+                                   bmin, bmax, start, count)
+                if ps >= 0:
+                    continue
+                theta_i, phi_i = _angles(wx, wy, wz, tx, ty, tz, ux, uy, uz, vx, vy, vz)
+                far_field(prm, ztab, theta_i, phi_i, theta_r, phi_r, lobes)
+                ci = math.cos(theta_i)
+                l0 += b0 * (lobes[0, 0] + lobes[1, 0] + lobes[2, 0]) * ci * e0
+                l1 += b1 * (lobes[0, 1] + lobes[1, 1] + lobes[2, 1]) * ci * e1
+                l2 += b2 * (lobes[0, 2] + lobes[1, 2] + lobes[2, 2]) * ci * e2
+            if depth + 1 >= max_scatter:
+                break
+            # sample the next (incident) direction
+            theta_i = _sample_theta(prm, mixp, theta_r, state)
+            phi_i = (2.0 * _rand(state) - 1.0) * math.pi
+            far_field(prm, ztab, theta_i, phi_i, theta_r, phi_r, lobes)
+            ci = math.cos(theta_i)
+            w = ci * ci * 2.0 * math.pi / _theta_pdf(prm, mixp, theta_r, theta_i)
+            b0 *= (lobes[0, 0] + lobes[1, 0] + lobes[2, 0]) * w
+            b1 *= (lobes[0, 1] + lobes[1, 1] + lobes[2, 1]) * w
+            b2 *= (lobes[0, 2] + lobes[1, 2] + lobes[2, 2]) * w
+            if b0 + b1 + b2 <= 0.0:
+                break
+            cp = math.cos(phi_i)
+            sp = math.sin(phi_i)
+            si = math.sin(theta_i)
+            dx = ci * (cp * ux + sp * vx) + si * tx
+            dy = ci * (cp * uy + sp * vy) + si * ty
+            dz = ci * (cp * uz + sp * vz) + si * tz
+            ox, oy, oz = xx, xy, xz
+            skip = prim
+        acc0 += l0
+        acc1 += l1
+        acc2 += l2
+    out[0] = acc0 / spp
+    out[1] = acc1 / spp
+    out[2] = acc2 / spp
+
+
+@njit(cache=True, parallel=True)
+def render_rows(row0, row1, height, width, spp, seed, cam, prm, ztab, mixp, lights, env, background,
+                max_scatter, a, b, radius, left, right, bmin, bmax, start, count, image):
+    """Render rows [row0, row1) into ``image`` (height, width, 3) float64, parallel over pixels."""
+    n = (row1 - row0) * width
+    for k in prange(n):
+        i = row0 + k // width
+        j = k % width
+        trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, env, background,
+                    max_scatter, a, b, radius, left, right, bmin, bmax, start, count, image[i, j])
