@@ -14,10 +14,12 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   property on N95 FFR contact pressure", ASME IDETC-CIE 2015, V01AT02A046). nu = 0.45 (tissue is
   nearly incompressible; 0.45 keeps linear tets free of volumetric locking).
 - **Mask**: the cushion is an FEM body with the mask's own material (:class:`MaskModel.material`);
-  its rigid shell vertices are tied to one rigid driver u (m) along the approach axis by a stiff
-  spring ``E = k/2 |x_s - X_s - u a|^2`` (:class:`ShellAttachment`; at equilibrium the shell force
-  equals the strap force exactly, whatever k). The driver carries the strap force F (N):
-  force control, the energy gets ``-F u`` (:class:`headsim.solvers.RigidDriver`).
+  its rigid shell vertices are tied by a stiff spring to a rigid motion of the mask
+  (:class:`ShellAttachment`; at equilibrium the shell carries the strap force exactly, whatever
+  the spring): a translation u (m) along the approach axis on a rigid driver carrying the strap
+  force F (N) -- force control, the energy gets ``-F u`` (:class:`headsim.solvers.RigidDriver`) --
+  and, by default, a pitch and a yaw about the strap point (the airway centre) carrying no moment,
+  so that the mask turns on its strap until the contact moments balance.
 - **Contact**: skin vertices against the cushion's closed surface with the lagged-plane penalty of
   :class:`headsim.solvers.PlaneContact` (consistent directions, Heinze eqs. 3.9-3.13), penalty
   kappa = ``penalty_factor`` x E_soft / h (Pa per m of penetration; h the median skin edge). Contact
@@ -84,6 +86,7 @@ class FitOptions:
     max_contact_updates : outer contact iterations of the quasi-static solve
     balance_tolerance : relative mismatch of contact force and strap force above which the fit is
         refused (ConvergenceError)
+    rotate : let the mask pitch and yaw about the strap point (moment balance), else translate only
     """
 
     tissue_modulus: float = TISSUE_MODULUS
@@ -100,6 +103,7 @@ class FitOptions:
     preload: float = 1e-3
     max_contact_updates: int = 30
     balance_tolerance: float = 0.01
+    rotate: bool = True
 
     def __post_init__(self):
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
@@ -135,22 +139,29 @@ def check_force(force: float) -> float:
 # ------------------------------------------------------------------------------------------------
 @dataclass(eq=False)
 class ShellAttachment:
-    """Ties vertices to a rigid translation u along ``axis``: E = k/2 sum |x_s - X_s - u a|^2.
+    """Ties the shell vertices to a rigid motion of the mask driven by the strap.
+
+    Motion: ``m_s(u) = sum_k u_k B_k(X_s)`` with ``B_0 = a`` (translation u_0 along the approach
+    axis, m, conjugate to the strap force) and, for k >= 1, linearised rotations about axes e_k
+    through the strap point c, ``B_k = e_k x (X_s - c) / R`` (u_k = R theta_k, m of arc at radius R,
+    conjugate to moment / R; these drivers carry zero load, so the mask turns until the contact
+    moments about c balance, as a mask hanging on a strap does). Energy
+    ``E = k/2 sum_s |x_s - X_s - m_s(u)|^2``: a stiff tie; at equilibrium the shell carries the strap
+    force exactly, whatever k.
 
     A :class:`headsim.solvers.contact.ContactTerm` in form (energy, gradient, hessian on (x, u)),
     so :func:`headsim.solvers.solve_quasi_static` treats it like a contact; it reports no contact
     force or pressure. vertices : (s,) int64; rest : (s, 3) m; stiffness : k, N/m per vertex;
-    driver : index of the strap driver (axis filled in by the solver).
+    modes : (r, s, 3) the B_k per vertex (driver k = index k).
     """
 
     vertices: np.ndarray
     rest: np.ndarray
     stiffness: float
-    driver: int = 0
-    axis: np.ndarray | None = None
+    modes: np.ndarray
 
     def _residual(self, x, u):
-        return x[self.vertices] - self.rest - u[self.driver] * self.axis
+        return x[self.vertices] - self.rest - np.einsum("k,ksd->sd", u[: len(self.modes)], self.modes)
 
     def energy(self, x, u):
         r = self._residual(x, u)
@@ -161,20 +172,21 @@ class ShellAttachment:
         gx = np.zeros_like(x)
         gx[self.vertices] = r
         gu = np.zeros(len(u))
-        gu[self.driver] = -float(np.sum(r @ self.axis))
+        gu[: len(self.modes)] = -np.einsum("sd,ksd->k", r, self.modes)
         return gx, gu
 
     def hessian(self, x, u):
         n, k = len(x), self.stiffness
         n_dof = 3 * n + len(u)
-        s = len(self.vertices)
+        nm = len(self.modes)
         dof = (3 * self.vertices[:, None] + np.arange(3)).ravel()
-        ud = 3 * n + self.driver
-        a = np.tile(self.axis, s)
-        rows = np.concatenate([dof, dof, np.full(len(dof), ud), [ud]])
-        cols = np.concatenate([dof, np.full(len(dof), ud), dof, [ud]])
-        vals = np.concatenate([np.full(len(dof), k), -k * a, -k * a, [k * s]])
-        return sp.csr_matrix((vals, (rows, cols)), shape=(n_dof, n_dof))
+        ud = 3 * n + np.arange(nm)
+        b = self.modes.reshape(nm, -1)                       # (r, 3s)
+        rows = [dof, np.repeat(dof, nm), np.tile(ud, len(dof)), np.repeat(ud, nm)]
+        cols = [dof, np.tile(ud, len(dof)), np.repeat(dof, nm), np.tile(ud, nm)]
+        vals = [np.full(len(dof), k), -k * b.T.ravel(), -k * b.T.ravel(), k * (b @ b.T).ravel()]
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(n_dof, n_dof))
 
     def update(self, x, u):
         return False
@@ -191,11 +203,12 @@ class ShellAttachment:
 # ------------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class FitState:
-    """A converged fit to warm-start the next one: positions (n, 3) m of the combined model and the
-    driver translation u (m) along the approach axis; ``force`` N it was solved for."""
+    """A converged fit to warm-start the next one: positions (n, 3) m of the combined model, the
+    driver unknowns (translation u along the approach axis, m; pitch and yaw as m of arc at 3 cm)
+    and the ``force`` (N) it was solved for."""
 
     positions: np.ndarray
-    driver: float
+    drivers: tuple
     force: float
 
 
@@ -284,6 +297,7 @@ class FitResult:
     deformed_face: SurfaceMesh
     deformed_mask: MaskModel
     mask_displacement: float
+    mask_rotation_deg: tuple
     state: FitState
     newton_iterations: int
     contact_updates: int
@@ -308,6 +322,8 @@ class FitResult:
             "sealed": self.sealed,
             "seal": self.seal.as_dict(),
             "mask_displacement_mm": self.mask_displacement * 1e3,
+            "mask_rotation_deg": {"pitch": self.mask_rotation_deg[0], "yaw": self.mask_rotation_deg[1]}
+            if len(self.mask_rotation_deg) == 2 else None,
             "newton_iterations": self.newton_iterations,
             "contact_updates": self.contact_updates,
             "solve_seconds": self.seconds,
@@ -463,6 +479,23 @@ def _axial_update(c, x, u) -> bool:
     return moved > c.tolerance
 
 
+#: radius that turns the rotation unknowns into lengths (m of arc), ~ the mask's half size
+_ROT_RADIUS = 0.03
+
+
+def shell_modes(problem: FitProblem, rest_shell: np.ndarray) -> np.ndarray:
+    """(r, s, 3) rigid-motion modes of the shell (ShellAttachment): translation along the approach,
+    then pitch and yaw about the strap point (the mask's airway centre) when ``options.rotate``."""
+    a = problem.approach
+    modes = [np.broadcast_to(a, rest_shell.shape)]
+    if problem.options.rotate:
+        rel = rest_shell - problem.mask.airway_center
+        lateral = np.cross(problem.mask.up, -a)
+        for e in (lateral / np.linalg.norm(lateral), problem.mask.up):
+            modes.append(np.cross(e, rel) / _ROT_RADIUS)
+    return np.stack(modes)
+
+
 def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float):
     p = problem
     e_shell = max(p.mask.material.youngs_modulus, p.options.tissue_modulus)
@@ -471,7 +504,7 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     contact.axis_of_approach = p.approach
     contact._tree = None
     contact.tolerance = tolerance
-    attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, driver=0)
+    attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, shell_modes(p, rest_shell))
     return contact, attach
 
 
@@ -523,15 +556,17 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
     t0 = time.perf_counter()
     axis = p.approach
     iters = updates = 0
+    n_drv = 3 if p.options.rotate else 1
     try:
         if warm_start is None:
             # cold start: push the mask in by ``preload`` under displacement control, then release
-            x0, u0 = None, np.zeros(1)
+            x0, u0 = None, np.zeros(n_drv)
         else:
             if warm_start.positions.shape != p.model.rest_positions.shape:
                 raise ParameterError("warm_start belongs to a different fit problem")
-            x0, u0 = warm_start.positions, np.array([warm_start.driver])
-        res, contact = _solve(p, [RigidDriver(axis, force=force)], x0, u0, force)
+            x0, u0 = warm_start.positions, np.array(warm_start.drivers, dtype=np.float64)
+        drivers = [RigidDriver(axis, force=force)] + [RigidDriver(axis, force=0.0)] * (n_drv - 1)
+        res, contact = _solve(p, drivers, x0, u0, force)
     except (ConvergenceError, DivergenceError) as e:
         raise ConvergenceError(f"mask fit of {p.mask.name} on {p.face.name} at {force:g} N did not converge: {e}") from e
     except HeadsimError:
@@ -571,5 +606,6 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
     return FitResult(
         force=force, contact_force=contact_force, support_force=support, balance_error=balance, pressure=pressure,
         areas=areas, summary=summary, seal=seal, gap=gap, deformed_face=deformed_face, deformed_mask=deformed_mask,
-        mask_displacement=float(u[0]), state=FitState(x, float(u[0]), force), newton_iterations=iters,
+        mask_displacement=float(u[0]), mask_rotation_deg=tuple(np.degrees(u[1:] / _ROT_RADIUS).tolist()),
+        state=FitState(x, tuple(u.tolist()), force), newton_iterations=iters,
         contact_updates=updates, seconds=time.perf_counter() - t0)

@@ -20,13 +20,13 @@ import contextlib
 import io
 import logging
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from headsim._atomic import atomic_output_file
 from headsim.errors import MeshError
 from headsim.mesh.surface import SurfaceMesh
 from headsim.mesh.tet import TetMesh
@@ -223,24 +223,9 @@ def load_tetmesh(
     return mesh
 
 
-@contextlib.contextmanager
-def _atomic_path(path: Path):
-    """Yield a temporary path beside ``path`` (same suffix); rename onto ``path`` on success only."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    os.replace(tmp, path)
-
-
 def _write_meshio(mesh, path: Path, fmt: str) -> None:
     kwargs = {"binary": True} if fmt in ("gmsh", "stl", "ply") else {}
-    with _atomic_path(path) as tmp, warnings.catch_warnings():
+    with atomic_output_file(path) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
             mesh.write(tmp, file_format=fmt, **kwargs)

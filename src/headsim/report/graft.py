@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from headsim.graft.plan import GraftResult
 from headsim.report.html import MeshLayer, mesh_figure, write_html_report

@@ -10,19 +10,14 @@ from __future__ import annotations
 
 import html
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from headsim._atomic import atomic_output_file
 
-def _usual_permissions(path) -> None:
-    """mkstemp creates 0600 files; give the permissions a normal file would get (0666 & ~umask)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(path, 0o666 & ~mask)
 
 __all__ = ["MeshLayer", "mesh_figure", "write_html_report", "numbers_table"]
 
@@ -124,15 +119,6 @@ def write_html_report(path: str | os.PathLike, *, title: str, figures: Sequence[
         first = False
     parts.append("</body></html>")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=".html", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write("".join(parts))
-        _usual_permissions(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_output_file(path) as tmp:
+        tmp.write_text("".join(parts), encoding="utf-8")
     return path

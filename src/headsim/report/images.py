@@ -8,18 +8,12 @@ colour with Lambert shading or coloured by a per-vertex scalar with a colour bar
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-
-def _usual_permissions(path) -> None:
-    """mkstemp creates 0600 files; give the permissions a normal file would get (0666 & ~umask)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(path, 0o666 & ~mask)
+from headsim._atomic import atomic_output_file
 
 __all__ = ["render_mesh", "render_panels"]
 
@@ -105,17 +99,9 @@ def render_panels(path: str | os.PathLike, panels: Sequence[dict], *, title: str
     if title:
         fig.suptitle(title)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=dpi, format="png")
-        _usual_permissions(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        with atomic_output_file(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, format="png")
     finally:
         plt.close(fig)
     return path

@@ -52,7 +52,9 @@ class ChargingOptions:
     """line_charge C/m (default the seed's -7.7e-4 statC/cm); particle_density per m (330 /cm);
     steps n; schedule 'incremental' | 'one-shot'; scalp_charge C (Q_S) and scalp_clamp m;
     gravity m/s^2; inner_iterations and tolerance (m) of the self-consistency per increment;
-    one_shot_iterations (1 = the seed's literal one-shot); coulomb: the force method."""
+    one_shot_iterations (1 = the seed's literal one-shot); relaxation: under-relaxation of the nodal
+    loads between self-consistency passes, F <- F + w (F(x) - F) (the first pass of an increment takes
+    the new charge's forces in full); coulomb: the force method."""
 
     line_charge: float = statc_per_cm_to_c_per_m(SEED_LINE_CHARGE_STATC_PER_CM)
     particle_density: float = per_cm_to_per_m(SEED_PARTICLES_PER_CM)
@@ -64,6 +66,7 @@ class ChargingOptions:
     inner_iterations: int = 20
     tolerance: float = 1e-7
     one_shot_iterations: int = 1
+    relaxation: float = 0.5
     coulomb: CoulombOptions = field(default_factory=CoulombOptions)
 
     def __post_init__(self):
@@ -78,6 +81,8 @@ class ChargingOptions:
             raise ParameterError("particle density must be positive (per m)")
         if self.steps < 1 or self.inner_iterations < 1 or self.one_shot_iterations < 1:
             raise ParameterError("steps and iteration counts must be >= 1")
+        if not (0.0 < self.relaxation <= 1.0):
+            raise ParameterError(f"relaxation must lie in (0, 1], got {self.relaxation}")
         if not (self.tolerance > 0):
             raise ParameterError("tolerance must be > 0 m")
         if len(self.gravity) != 3 or not np.isfinite(self.gravity).all():
@@ -164,7 +169,11 @@ def charge_fibres(model: RodModel, options: ChargingOptions = ChargingOptions(),
         newton = 0
         while n_pass < passes:
             x, fc, fs = _forces(sampling, pos, q, options, scalp, tree)
-            nodal = sampling.node_forces(fc + fs)
+            new_loads = sampling.node_forces(fc + fs)
+            if n_pass == 0 or nodal is None:
+                nodal = new_loads
+            else:
+                nodal = nodal + options.relaxation * (new_loads - nodal)
             kap, new, its = equilibrate(model, g, nodal, kap)
             newton += its
             moved = float(np.abs(new - pos).max())
