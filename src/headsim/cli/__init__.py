@@ -57,6 +57,11 @@ def _register() -> None:
 
     app.add_typer(hair_cmd.app, name="hair")
 
+    from headsim.cli import mask_cmd
+
+    app.add_typer(mask_cmd.app, name="mask")
+    app.command("demo")(mask_cmd.demo)
+
 
 _register()
 

@@ -73,7 +73,7 @@ def capsule_contacts_bruteforce(fibres: FibreSet, nodes=None, chunk: int = 2_000
     return pairs[order].astype(np.int64), params[order]
 
 
-def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 20_000):
+def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 2_000):
     """Peer method: cKDTree broad phase on segment midpoints + NumPy exact test.
 
     Two capsules can touch only if their midpoints are closer than ``(L_a + L_b)/2 + r_a + r_b``, so a

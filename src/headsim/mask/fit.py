@@ -65,7 +65,7 @@ UPDATE_TOL = 2e-4
 MAXIT = 100
 #: Effective homogeneous facial soft-tissue modulus, Pa (module doc).
 TISSUE_MODULUS = 30e3
-TISSUE_POISSON = 0.45
+TISSUE_POISSON = 0.49
 TISSUE_DENSITY = 1050.0
 
 
@@ -93,8 +93,8 @@ class FitOptions:
     tissue_poisson: float = TISSUE_POISSON
     tissue_density: float = TISSUE_DENSITY
     tissue_thickness: float = 0.01
-    tissue_layers: int = 2
-    crop_margin: float | None = 0.012
+    tissue_layers: int = 1
+    crop_margin: float | None = 0.008
     penalty_factor: float = 200.0
     therapy_pressure: float = THERAPY_PRESSURE_PA
     pressure_threshold: float = CAPILLARY_CLOSING_PA
@@ -557,28 +557,33 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
     axis = p.approach
     iters = updates = 0
     n_drv = 3 if p.options.rotate else 1
-    try:
-        if warm_start is None:
-            # cold start: push the mask in by ``preload`` under displacement control, then release
-            x0, u0 = None, np.zeros(n_drv)
-        else:
-            if warm_start.positions.shape != p.model.rest_positions.shape:
-                raise ParameterError("warm_start belongs to a different fit problem")
-            x0, u0 = warm_start.positions, np.array(warm_start.drivers, dtype=np.float64)
-        drivers = [RigidDriver(axis, force=force)] + [RigidDriver(axis, force=0.0)] * (n_drv - 1)
-        res, contact = _solve(p, drivers, x0, u0, force)
-    except (ConvergenceError, DivergenceError) as e:
-        raise ConvergenceError(f"mask fit of {p.mask.name} on {p.face.name} at {force:g} N did not converge: {e}") from e
-    except HeadsimError:
-        raise
+    drivers = [RigidDriver(axis, force=force)] + [RigidDriver(axis, force=0.0)] * (n_drv - 1)
+    attempts = []
+    if warm_start is not None:
+        if warm_start.positions.shape != p.model.rest_positions.shape or len(warm_start.drivers) != n_drv:
+            raise ParameterError("warm_start belongs to a different fit problem")
+        attempts.append((warm_start.positions, np.array(warm_start.drivers, dtype=np.float64)))
+    attempts.append((None, np.zeros(n_drv)))  # cold start from first contact (fallback)
+    res = contact = None
+    errors = []
+    for x0, u0 in attempts:
+        try:
+            res, contact = _solve(p, drivers, x0, u0, force)
+        except (ConvergenceError, DivergenceError) as e:
+            errors.append(str(e))
+            continue
+        bad = p.model.check_state(res.positions)
+        if bad is not None or not np.isfinite(res.positions).all():
+            errors.append(bad or "non-finite positions")
+            res = None
+            continue
+        break
+    if res is None:
+        raise ConvergenceError(f"mask fit of {p.mask.name} on {p.face.name} at {force:g} N did not converge: "
+                               + "; ".join(errors))
     iters += res.newton_iterations
     updates += res.contact_updates
     x, u = res.positions, res.driver_displacement
-    if not np.isfinite(x).all():
-        raise DivergenceError(f"mask fit at {force:g} N produced non-finite positions")
-    bad = p.model.check_state(x)
-    if bad is not None:
-        raise DivergenceError(f"mask fit at {force:g} N: {bad}")
     # pressures and forces on the skin from the face-cushion contact only
     cf = contact.vertex_forces(x, u)
     skin_force = cf[p.skin_vertices]

@@ -119,7 +119,17 @@ def equilibrate(model: RodModel, gravity, node_forces=None, kappa=None):
     kap = np.empty((F, N, 3))
     pos = np.empty((F, N + 1, 3))
     its = 0
+    same = {}  # without nodal loads, fibres that differ only by their root position share the shape
     for f in range(F):
+        if node_forces is None and kappa is None:
+            key = b"".join(np.ascontiguousarray(a[f]).tobytes() for a in (
+                model.length, model.rho_area, model.stiffness, model.natural_curvature, model.root_frame))
+            if key in same:
+                g = same[key]
+                kap[f] = kap[g]
+                pos[f] = pos[g] - model.root_position[g] + model.root_position[f]
+                continue
+            same[key] = f
         k, r, it = fibre_equilibrium(model, f, gravity, None if node_forces is None else node_forces[f],
                                      None if kappa is None else kappa[f])
         kap[f], pos[f] = k, r

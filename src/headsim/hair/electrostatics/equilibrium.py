@@ -12,6 +12,7 @@ to :func:`headsim.solvers.rods_statics.solve_static_energy`.
 from __future__ import annotations
 
 import numpy as np
+from scipy import optimize
 from scipy.sparse.linalg import LinearOperator, cg
 
 from headsim.errors import ConvergenceError
@@ -41,7 +42,16 @@ def fibre_equilibrium(model: RodModel, fibre: int, gravity=(0.0, 0.0, 0.0), node
         _, g, _, _ = static_energy(model, k0 + u.reshape(N, 3) / sq, loads, fibre)
         return (g / sq).ravel() / scale
 
-    u = np.zeros(3 * N) if kappa_start is None else ((np.asarray(kappa_start) - k0) * sq).ravel()
+    if kappa_start is None:
+        # a cold start is far from the solution: L-BFGS on the energy first, Newton afterwards
+        def fun(u):
+            e, gk, _, _ = static_energy(model, k0 + u.reshape(N, 3) / sq, loads, fibre)
+            return e / scale, (gk / sq).ravel() / scale
+
+        u = optimize.minimize(fun, np.zeros(3 * N), jac=True, method="L-BFGS-B",
+                              options={"maxiter": 5000, "gtol": 1e-6, "ftol": 1e-15, "maxcor": 30}).x
+    else:
+        u = ((np.asarray(kappa_start) - k0) * sq).ravel()
     g = grad(u)
     gn = float(np.abs(g).max())
     it = 0
@@ -57,7 +67,7 @@ def fibre_equilibrium(model: RodModel, fibre: int, gravity=(0.0, 0.0, 0.0), node
             return (grad(u + e * v) - grad(u - e * v)) / (2 * e)
 
         H = LinearOperator((3 * N, 3 * N), matvec=hv, dtype=float)
-        du, info = cg(H, -g, rtol=1e-4, maxiter=20 * N)
+        du, info = cg(H, -g, rtol=1e-4, maxiter=10 * N)
         if not np.all(np.isfinite(du)):
             ok = False
             break

@@ -1,6 +1,18 @@
-"""Physically based hair rendering (Sobottka 2008 ch. 6): Marschner far field with the seed's
-corrections, near field, and a Numba path tracer for fibre assemblies with multiple scattering."""
+"""Physically based hair rendering (Sobottka 2008 ch. 6): the Marschner far field with the seed's
+corrections, the near field across the fibre width, and a Numba path tracer for fibre assemblies with
+multiple fibre-to-fibre scattering (Mitsuba 3 as the optional peer, :mod:`.mitsuba_peer`)."""
 
+from headsim.hair.render.bvh import CapsuleBVH, FibreAssembly
+from headsim.hair.render.renderer import (
+    Camera,
+    Light,
+    RenderOptions,
+    RenderResult,
+    camera_looking_at,
+    render,
+    save_png,
+    to_srgb8,
+)
 from headsim.hair.render.scattering import (
     PRESETS,
     FurnaceResult,
@@ -12,15 +24,27 @@ from headsim.hair.render.scattering import (
     sigma_a_from_melanin,
     white_furnace,
 )
+from headsim.hair.render.synthetic import synthetic_hairstyle
 
 __all__ = [
     "PRESETS",
+    "Camera",
+    "CapsuleBVH",
+    "FibreAssembly",
     "FurnaceResult",
+    "Light",
     "MarschnerParams",
+    "RenderOptions",
+    "RenderResult",
+    "camera_looking_at",
     "far_field_lobes",
     "goniometric_curve",
     "near_field_lobes",
+    "render",
+    "save_png",
     "scattering",
     "sigma_a_from_melanin",
+    "synthetic_hairstyle",
+    "to_srgb8",
     "white_furnace",
 ]

@@ -162,14 +162,13 @@ def _slab(ox, oy, oz, ix, iy, iz, bmin, bmax, node, tmax):
 
 @njit(cache=True)
 def intersect(ox, oy, oz, dx, dy, dz, tmin, tmax, skip, any_hit, a, b, radius, left, right, bmin, bmax,
-              start, count):
+              start, count, stack):
     """Closest (or any, for shadow rays) capsule hit with tmin < t < tmax, ignoring primitive ``skip``.
 
-    Returns (t, primitive index) or (inf, −1)."""
+    ``stack``: scratch (≥ 128,) int64. Returns (t, primitive index) or (inf, −1)."""
     ix = 1.0 / dx if dx != 0.0 else 1e300
     iy = 1.0 / dy if dy != 0.0 else 1e300
     iz = 1.0 / dz if dz != 0.0 else 1e300
-    stack = np.empty(_STACK, np.int64)
     top = 0
     best_t = tmax
     best_i = -1

@@ -7,6 +7,7 @@ Packed parameter vector ``prm`` (float64, see :data:`N_PRM`; built by ``Marschne
     0 eta, 1–3 alpha_R/TT/TRT, 4–6 beta_R/TT/TRT, 7–9 sigma_a RGB (per fibre radius),
     10 eccentricity a, 11 glint width w_c, 12 dh_max (caustic clamp D_max = dh_max / w_c),
     13 near-field azimuthal width, 14 caustic flag (1: clamp + energy-preserving glint).
+``gtab`` (NT, NC, 4) float64: tabulated TRT caustic energy and azimuth (:func:`glint_table`).
 ``ztab`` (3, NZ) float64: normalisation Z_p(θ_i) of the longitudinal lobes on a uniform θ_i grid over
 [−π/2, π/2] (all ones for Marschner's plain Gaussians).
 
@@ -23,7 +24,6 @@ from numba import njit, prange
 N_PRM = 15
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
-_NQ = 32  # midpoint nodes of the caustic-energy quadrature
 
 
 @njit(cache=True)
@@ -127,7 +127,8 @@ def _lobe_roots_sum(p, dphi, n1, n2, sig, cos_tt, dmax, out):
     T = exp(−σ_a 2 cos γ_t / cos θ_t)^p (6.9 with s_M = 2R cos γ_t, σ_a per radius)."""
     a3, a1, a0 = cubic_coefficients(p, n1)
     base = dphi - _TWO_PI * math.floor(dphi / _TWO_PI)
-    # the cubic's range: TT (2c, 2π − 2c); TRT [π − 4c, π + 4c] ∪ [2π − φ_c', 2π + φ_c'] (local extrema)
+    # the cubic's range: TT [2c, 2π − 2c]; TRT endpoints π + 4c (γ = π/2), 3π − 4c (γ = −π/2) and the
+    # local extrema 2π ∓ φ_c' at ∓γ_c
     c = math.asin(1.0 / n1)
     if p == 1:
         lo = 2.0 * c
@@ -137,8 +138,8 @@ def _lobe_roots_sum(p, dphi, n1, n2, sig, cos_tt, dmax, out):
         if a1 > 0.0:
             gc = math.sqrt(a1 / (-3.0 * a3))
             ext = abs(a3 * gc ** 3 + a1 * gc)
-        lo = min(_PI - 4.0 * c, _TWO_PI - ext)
-        hi = max(_PI + 4.0 * c, _TWO_PI + ext)
+        lo = min(_PI + 4.0 * c, _TWO_PI - ext, 3.0 * _PI - 4.0 * c)
+        hi = max(_PI + 4.0 * c, _TWO_PI + ext, 3.0 * _PI - 4.0 * c)
     k_lo = int(math.ceil((lo - base) / _TWO_PI - 1e-9))
     k_hi = int(math.floor((hi - base) / _TWO_PI + 1e-9))
     for k in range(k_lo, k_hi + 1):
@@ -150,28 +151,27 @@ def _lobe_roots_sum(p, dphi, n1, n2, sig, cos_tt, dmax, out):
 
 
 @njit(cache=True)
-def _caustic_glint(dphi, n1, n2, sig, cos_tt, dmax, wc, out):
-    """Energy-preserving caustic regularisation of TRT (digest §5.2, after Marschner 2003 §4.3).
-
-    The ray density is clamped at D_max; the energy the clamp removed, ½∫ A T (1 − D_max/D)₊ dh per
-    caustic (midpoint rule in γ over the interval where |dΔφ/dh| < 1/D_max can hold), is put back as a
-    wrapped Gaussian of width w_c centred on each caustic ±φ_c. Adds RGB into ``out``."""
+def caustic_energy(n1, n2, sig, cos_tt, dmax, nq, out):
+    """Energy the TRT ray-density clamp removes around one caustic, ½∫ A T (1 − D_max/D)₊ dh (RGB into
+    ``out``, midpoint rule with ``nq`` nodes in γ over the interval where |dΔφ/dh| < 1/D_max can hold),
+    and the caustic azimuth φ_c (returned). Digest §5.2, after Marschner 2003 §4.3."""
     p = 2
     a3, a1, a0 = cubic_coefficients(p, n1)
+    gc = math.sqrt(a1 / (-3.0 * a3)) if a1 > 0.0 else 0.0
+    phic = a3 * gc ** 3 + a1 * gc + a0
+    for ch in range(3):
+        out[ch] = 0.0
     inv = 1.0 / dmax
     lo2 = (a1 - inv) / (-3.0 * a3)
     hi2 = (a1 + inv) / (-3.0 * a3)
     if hi2 <= 0.0:
-        return
+        return phic
     g_lo = math.sqrt(max(0.0, lo2))
     g_hi = min(math.sqrt(hi2), 0.5 * _PI)
     if g_hi <= g_lo:
-        return
-    gc = math.sqrt(a1 / (-3.0 * a3)) if a1 > 0.0 else 0.0
-    phic = a3 * gc ** 3 + a1 * gc + a0
-    e = np.zeros(3)
-    step = (g_hi - g_lo) / _NQ
-    for q in range(_NQ):
+        return phic
+    step = (g_hi - g_lo) / nq
+    for q in range(nq):
         g = g_lo + (q + 0.5) * step
         cg = math.cos(g)
         deriv = abs(a1 + 3.0 * a3 * g * g) / max(cg, 1e-12)
@@ -185,10 +185,61 @@ def _caustic_glint(dphi, n1, n2, sig, cos_tt, dmax, wc, out):
         ct = math.sqrt(max(0.0, 1.0 - st * st))
         w = 0.5 * a * (1.0 - dmax / d) * cg * step
         for ch in range(3):
-            e[ch] += w * math.exp(-p * sig[ch] * 2.0 * ct / cos_tt)
+            out[ch] += w * math.exp(-p * sig[ch] * 2.0 * ct / cos_tt)
+    return phic
+
+
+@njit(cache=True)
+def _eta_star(eta, a, cos2phih):
+    n1s = 2.0 * (eta - 1.0) * a * a - eta + 2.0
+    n2s = 2.0 * (eta - 1.0) / (a * a) - eta + 2.0
+    return 0.5 * ((n1s + n2s) + cos2phih * (n1s - n2s))
+
+
+@njit(cache=True)
+def glint_table(prm, nt, nc, nq, gtab):
+    """Tabulate the caustic energy and φ_c over |θ_d| ∈ [0, π/2] (nt) × cos(φ_i + φ_r) ∈ [−1, 1] (nc;
+    nc = 1 for circular fibres): ``gtab`` (nt, nc, 4) = (E_R, E_G, E_B, φ_c)."""
+    e = np.zeros(3)
+    dmax = prm[12] / prm[11]
+    for i in range(nt):
+        td = min(0.5 * _PI * i / (nt - 1), 0.5 * _PI - 1e-6)
+        for j in range(nc):
+            c2 = -1.0 + 2.0 * j / (nc - 1) if nc > 1 else 1.0
+            es = _eta_star(prm[0], prm[10], c2)
+            n1, n2 = bravais(es, td)
+            st = math.sin(td) / es
+            ctt = math.sqrt(max(1e-12, 1.0 - st * st))
+            phic = caustic_energy(n1, n2, prm[7:10], ctt, dmax, nq, e)
+            for ch in range(3):
+                gtab[i, j, ch] = e[ch]
+            gtab[i, j, 3] = phic
+
+
+@njit(cache=True)
+def _glint_from_table(gtab, td, cos2phih, dphi, wc, out):
+    nt = gtab.shape[0]
+    nc = gtab.shape[1]
+    x = min(abs(td) / (0.5 * _PI), 1.0) * (nt - 1)
+    i = min(int(x), nt - 2)
+    tx = x - i
+    if nc > 1:
+        y = (min(1.0, max(-1.0, cos2phih)) + 1.0) * 0.5 * (nc - 1)
+        j = min(int(y), nc - 2)
+        ty = y - j
+    else:
+        j = 0
+        ty = 0.0
+    j1 = min(j + 1, nc - 1)
+    w00 = (1 - tx) * (1 - ty)
+    w10 = tx * (1 - ty)
+    w01 = (1 - tx) * ty
+    w11 = tx * ty
+    phic = w00 * gtab[i, j, 3] + w10 * gtab[i + 1, j, 3] + w01 * gtab[i, j1, 3] + w11 * gtab[i + 1, j1, 3]
     shape = gauss_wrapped(wc, dphi - phic) + gauss_wrapped(wc, dphi + phic)
     for ch in range(3):
-        out[ch] += e[ch] * shape
+        e = w00 * gtab[i, j, ch] + w10 * gtab[i + 1, j, ch] + w01 * gtab[i, j1, ch] + w11 * gtab[i + 1, j1, ch]
+        out[ch] += e * shape
 
 
 @njit(cache=True)
@@ -224,16 +275,15 @@ def _angles_common(prm, theta_i, phi_i, theta_r, phi_r):
     cd2 = max(math.cos(td) ** 2, 1e-12)
     dphi = phi_r - phi_i
     # elliptic cross-section, TRT only (6.12): cos 2φ_h = cos(φ_i + φ_r)
-    a = prm[10]
-    n1s = 2.0 * (eta - 1.0) * a * a - eta + 2.0
-    n2s = 2.0 * (eta - 1.0) / (a * a) - eta + 2.0
-    eta_star = 0.5 * ((n1s + n2s) + math.cos(phi_i + phi_r) * (n1s - n2s))
+    eta_star = _eta_star(eta, prm[10], math.cos(phi_i + phi_r))
     return td, cos_tt, cd2, dphi, eta_star
 
 
 @njit(cache=True)
-def far_field(prm, ztab, theta_i, phi_i, theta_r, phi_r, out):
-    """Far-field S_p = M_p N_p / cos²θ_d (6.14) per lobe, ``out`` (3 lobes R/TT/TRT, 3 RGB), overwritten."""
+def far_field(prm, ztab, gtab, theta_i, phi_i, theta_r, phi_r, out):
+    """Far-field S_p = M_p N_p / cos²θ_d (6.14) per lobe, ``out`` (3 lobes R/TT/TRT, 3 RGB), overwritten.
+
+    ``gtab``: caustic table of :func:`glint_table` (used when prm[14] > 0)."""
     td, cos_tt, cd2, dphi, eta_star = _angles_common(prm, theta_i, phi_i, theta_r, phi_r)
     sig = prm[7:10]
     for i in range(3):
@@ -258,7 +308,7 @@ def far_field(prm, ztab, theta_i, phi_i, theta_r, phi_r, out):
     if prm[14] > 0.0:
         dmax = prm[12] / prm[11]
         _lobe_roots_sum(2, dphi, s1, s2, sig, cos_tt2, dmax, out[2])
-        _caustic_glint(dphi, s1, s2, sig, cos_tt2, dmax, prm[11], out[2])
+        _glint_from_table(gtab, td, math.cos(phi_i + phi_r), dphi, prm[11], out[2])
     else:
         _lobe_roots_sum(2, dphi, s1, s2, sig, cos_tt2, 0.0, out[2])
     m = longitudinal(prm, ztab, 2, theta_i, theta_r) / cd2
@@ -297,10 +347,10 @@ def near_field(prm, ztab, h_r, theta_i, phi_i, theta_r, phi_r, out):
 
 
 @njit(cache=True, parallel=True)
-def far_field_batch(prm, ztab, theta_i, phi_i, theta_r, phi_r, out):
+def far_field_batch(prm, ztab, gtab, theta_i, phi_i, theta_r, phi_r, out):
     """Vectorised :func:`far_field`; angle arrays (n,), ``out`` (n, 3, 3)."""
     for k in prange(theta_i.shape[0]):
-        far_field(prm, ztab, theta_i[k], phi_i[k], theta_r[k], phi_r[k], out[k])
+        far_field(prm, ztab, gtab, theta_i[k], phi_i[k], theta_r[k], phi_r[k], out[k])
 
 
 @njit(cache=True, parallel=True)

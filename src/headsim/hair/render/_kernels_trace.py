@@ -1,9 +1,11 @@
 """Numba path tracer for fibre assemblies with the Marschner far-field BSDF (render subpackage).
 
-Per camera sample: up to ``max_scatter`` fibre scattering events (order 1 = single scattering); at every
+``near`` selects the near-field lobes (Sobottka 6.20) at the hit's offset h across the fibre width
+instead of the far field. Per camera sample: up to ``max_scatter`` fibre scattering events (order 1 = single scattering); at every
 event next-event estimation toward each light with a shadow ray, then a new direction importance-sampled
 from the lobes' longitudinal Gaussians (defensive mixture, φ uniform); rays escaping after ≥ 1 event see
-the constant environment. Lights: ``lights`` (L, 7) rows [kind, x, y, z, r, g, b] with kind 0 =
+the constant environment. Russian roulette from path segment ``rr_depth`` on (Mitsuba's rule,
+q = min(max throughput, 0.95); unbiased). Lights: ``lights`` (L, 7) rows [kind, x, y, z, r, g, b] with kind 0 =
 directional (x,y,z toward the light, rgb irradiance W/m²) and kind 1 = point (position m, rgb intensity W/sr).
 """
 
@@ -14,8 +16,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from headsim.hair.render._kernels_bvh import intersect
-from headsim.hair.render._kernels_scattering import far_field, gauss
+from headsim.hair.render._kernels_bvh import _STACK, intersect
+from headsim.hair.render._kernels_scattering import far_field, gauss, near_field
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
@@ -96,13 +98,14 @@ def _sample_theta(prm, mixp, theta_r, state):
 
 
 @njit(cache=True)
-def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, env, background, max_scatter,
-                a, b, radius, left, right, bmin, bmax, start, count, out):
+def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background, max_scatter,
+                rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, out):
     """Accumulate the mean radiance of pixel (i, j) over ``spp`` samples into ``out`` (3,).
 
     cam (12,): position, forward, right·tan(fov_x/2), up·tan(fov_y/2)."""
     state = np.empty(1, np.uint64)
     lobes = np.empty((3, 3))
+    stack = np.empty(_STACK, np.int64)
     acc0 = 0.0
     acc1 = 0.0
     acc2 = 0.0
@@ -127,7 +130,7 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, en
         skip = -1
         for depth in range(max_scatter):
             t, prim = intersect(ox, oy, oz, dx, dy, dz, 1e-9, np.inf, skip, False, a, b, radius, left, right,
-                                bmin, bmax, start, count)
+                                bmin, bmax, start, count, stack)
             if prim < 0:
                 if depth == 0:
                     l0 += background[0]
@@ -150,6 +153,18 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, en
             tz /= tn
             ux, uy, uz, vx, vy, vz = _frame(tx, ty, tz)
             theta_r, phi_r = _angles(-dx, -dy, -dz, tx, ty, tz, ux, uy, uz, vx, vy, vz)
+            h_r = 0.0
+            if near:
+                # exit offset across the width: h_r = sin(φ_r − φ_n), φ_n the azimuth of the surface normal
+                px_ = xx - a[prim, 0]
+                py_ = xy - a[prim, 1]
+                pz_ = xz - a[prim, 2]
+                s_ax = px_ * tx + py_ * ty + pz_ * tz
+                nx_ = px_ - s_ax * tx
+                ny_ = py_ - s_ax * ty
+                nz_ = pz_ - s_ax * tz
+                phi_n = math.atan2(nx_ * vx + ny_ * vy + nz_ * vz, nx_ * ux + ny_ * uy + nz_ * uz)
+                h_r = math.sin(phi_r - phi_n)
             # next-event estimation
             for k in range(lights.shape[0]):
                 if lights[k, 0] == 0.0:
@@ -167,11 +182,14 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, en
                     inv = 1.0 / (dist * dist)
                     e0, e1, e2 = lights[k, 4] * inv, lights[k, 5] * inv, lights[k, 6] * inv
                 ts, ps = intersect(xx, xy, xz, wx, wy, wz, 1e-9, dist, prim, True, a, b, radius, left, right,
-                                   bmin, bmax, start, count)
+                                   bmin, bmax, start, count, stack)
                 if ps >= 0:
                     continue
                 theta_i, phi_i = _angles(wx, wy, wz, tx, ty, tz, ux, uy, uz, vx, vy, vz)
-                far_field(prm, ztab, theta_i, phi_i, theta_r, phi_r, lobes)
+                if near:
+                    near_field(prm, ztab, h_r, theta_i, phi_i, theta_r, phi_r, lobes)
+                else:
+                    far_field(prm, ztab, gtab, theta_i, phi_i, theta_r, phi_r, lobes)
                 ci = math.cos(theta_i)
                 l0 += b0 * (lobes[0, 0] + lobes[1, 0] + lobes[2, 0]) * ci * e0
                 l1 += b1 * (lobes[0, 1] + lobes[1, 1] + lobes[2, 1]) * ci * e1
@@ -181,7 +199,10 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, en
             # sample the next (incident) direction
             theta_i = _sample_theta(prm, mixp, theta_r, state)
             phi_i = (2.0 * _rand(state) - 1.0) * math.pi
-            far_field(prm, ztab, theta_i, phi_i, theta_r, phi_r, lobes)
+            if near:
+                near_field(prm, ztab, h_r, theta_i, phi_i, theta_r, phi_r, lobes)
+            else:
+                far_field(prm, ztab, gtab, theta_i, phi_i, theta_r, phi_r, lobes)
             ci = math.cos(theta_i)
             w = ci * ci * 2.0 * math.pi / _theta_pdf(prm, mixp, theta_r, theta_i)
             b0 *= (lobes[0, 0] + lobes[1, 0] + lobes[2, 0]) * w
@@ -189,6 +210,13 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, en
             b2 *= (lobes[0, 2] + lobes[1, 2] + lobes[2, 2]) * w
             if b0 + b1 + b2 <= 0.0:
                 break
+            if depth + 2 >= rr_depth:  # Russian roulette as Mitsuba's path integrator (rr_depth counts segments)
+                q = min(max(b0, max(b1, b2)), 0.95)
+                if _rand(state) >= q:
+                    break
+                b0 /= q
+                b1 /= q
+                b2 /= q
             cp = math.cos(phi_i)
             sp = math.sin(phi_i)
             si = math.sin(theta_i)
@@ -206,12 +234,12 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, en
 
 
 @njit(cache=True, parallel=True)
-def render_rows(row0, row1, height, width, spp, seed, cam, prm, ztab, mixp, lights, env, background,
-                max_scatter, a, b, radius, left, right, bmin, bmax, start, count, image):
+def render_rows(row0, row1, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background,
+                max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, image):
     """Render rows [row0, row1) into ``image`` (height, width, 3) float64, parallel over pixels."""
     n = (row1 - row0) * width
     for k in prange(n):
         i = row0 + k // width
         j = k % width
-        trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, mixp, lights, env, background,
-                    max_scatter, a, b, radius, left, right, bmin, bmax, start, count, image[i, j])
+        trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background,
+                    max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, image[i, j])

@@ -108,8 +108,24 @@ class CapsuleBVH:
                       self.bmin, self.bmax)
 
     @classmethod
-    def from_fibres(cls, fibres: FibreAssembly, leaf_size: int = 4) -> "CapsuleBVH":
-        return cls(*fibres.segments(), leaf_size=leaf_size)
+    def from_fibres(cls, fibres: FibreAssembly, leaf_size: int = 4, max_aspect: float = 0.0) -> "CapsuleBVH":
+        """BVH over the fibre segments; segments longer than ``max_aspect`` radii are cut into equal
+        sub-capsules (their union is the original capsule, so hits of rays starting outside the fibres are
+        unchanged) to tighten the boxes; 0 (default) keeps whole segments — measured no faster on hair."""
+        a, b, r = fibres.segments()
+        if max_aspect > 0:
+            length = np.linalg.norm(b - a, axis=1)
+            k = np.clip(np.ceil(length / (max_aspect * r)), 1, 64).astype(np.int64)
+            if k.max() > 1:
+                seg = np.repeat(np.arange(len(a)), k)
+                first = np.repeat(np.cumsum(k) - k, k)
+                j = np.arange(len(seg)) - first
+                kk = k[seg].astype(np.float64)
+                t0 = (j / kk)[:, None]
+                t1 = ((j + 1) / kk)[:, None]
+                d = b[seg] - a[seg]
+                a, b, r = a[seg] + t0 * d, a[seg] + t1 * d, r[seg]
+        return cls(a, b, r, leaf_size=leaf_size)
 
     @property
     def arrays(self) -> tuple:
@@ -132,7 +148,8 @@ from numba import njit, prange  # noqa: E402
 @njit(cache=True, parallel=True)
 def _intersect_batch(o, d, tmax, a, b, radius, left, right, bmin, bmax, start, count, t_out, i_out):
     for k in prange(o.shape[0]):
+        stack = np.empty(_k._STACK, np.int64)
         t, i = _k.intersect(o[k, 0], o[k, 1], o[k, 2], d[k, 0], d[k, 1], d[k, 2], 0.0, tmax, -1, False,
-                            a, b, radius, left, right, bmin, bmax, start, count)
+                            a, b, radius, left, right, bmin, bmax, start, count, stack)
         t_out[k] = t
         i_out[k] = i

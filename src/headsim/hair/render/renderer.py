@@ -101,7 +101,9 @@ class Light:
 class RenderOptions:
     """width, height : pixels; spp : samples per pixel; max_scatter : fibre scattering orders (1–16);
     env : constant environment radiance RGB seen by scattered rays; background : RGB of camera misses;
-    seed : sampler seed; rows_per_block : progress granularity."""
+    seed : sampler seed; rows_per_block : progress granularity; rr_depth : path segment from which
+    Russian roulette starts (Mitsuba's default 5; a large value disables it); near_field : shade with
+    the near-field lobes at the hit's offset across the fibre width (close-ups, Sobottka §6.4)."""
 
     width: int = 256
     height: int = 256
@@ -111,12 +113,16 @@ class RenderOptions:
     background: tuple = (0.0, 0.0, 0.0)
     seed: int = 0
     rows_per_block: int = 16
+    rr_depth: int = 5
+    near_field: bool = False
 
     def __post_init__(self):
         if not (1 <= self.width <= 16384 and 1 <= self.height <= 16384):
             raise ParameterError(f"image size must be 1 … 16384 pixels, got {self.width}×{self.height}")
         if not (1 <= self.spp <= 1 << 16):
             raise ParameterError(f"spp must be in [1, 65536], got {self.spp}")
+        if self.rr_depth < 1:
+            raise ParameterError(f"rr_depth must be ≥ 1, got {self.rr_depth}")
         if not (1 <= self.max_scatter <= 16):
             raise ParameterError(f"max_scatter must be in [1, 16], got {self.max_scatter}")
         for name in ("env", "background"):
@@ -158,6 +164,7 @@ def render(fibres: FibreAssembly | CapsuleBVH, params: MarschnerParams, camera: 
     cam = camera.packed(w, h)
     prm = np.array(params.packed)
     ztab = np.array(params.ztab)
+    gtab = np.array(params.gtab)
     mixp = _mixture(params)
     env = np.asarray(options.env, dtype=np.float64)
     bg = np.asarray(options.background, dtype=np.float64)
@@ -165,8 +172,8 @@ def render(fibres: FibreAssembly | CapsuleBVH, params: MarschnerParams, camera: 
     c1 = time.process_time()
     for r0 in range(0, h, options.rows_per_block):
         r1 = min(h, r0 + options.rows_per_block)
-        _k.render_rows(r0, r1, h, w, options.spp, options.seed, cam, prm, ztab, mixp, light_rows, env, bg,
-                       options.max_scatter, *bvh.arrays, img)
+        _k.render_rows(r0, r1, h, w, options.spp, options.seed, cam, prm, ztab, gtab, mixp, light_rows, env, bg,
+                       options.max_scatter, options.rr_depth, bool(options.near_field), *bvh.arrays, img)
         if progress is not None:
             progress(r1, h)
     wall = time.perf_counter() - t1

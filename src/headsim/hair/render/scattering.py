@@ -192,6 +192,16 @@ class MarschnerParams:
         return z
 
     @cached_property
+    def gtab(self) -> np.ndarray:
+        """(91, 1 or 33, 4) float64 TRT caustic table: energy removed by the clamp (RGB) and φ_c, over
+        |θ_d| × cos(φ_i + φ_r) (the second axis only for elliptic fibres)."""
+        nc = 1 if self.eccentricity == 1.0 else 33
+        g = np.zeros((91, nc, 4))
+        _k.glint_table(self.packed, 91, nc, 256, g)
+        g.flags.writeable = False
+        return g
+
+    @cached_property
     def lobe_weights(self) -> np.ndarray:
         """(3,) float64: each lobe's azimuthal energy ½∫A_p T_p dh at θ_d = 0, mean over RGB (for sampling)."""
         h = (np.arange(400) + 0.5) / 400 * 2 - 1
@@ -228,7 +238,7 @@ def far_field_lobes(params: MarschnerParams, theta_i, phi_i, theta_r, phi_r) -> 
     """
     shape, (ti, pi_, tr, pr) = _broadcast(theta_i, phi_i, theta_r, phi_r)
     out = np.empty((ti.size, 3, 3))
-    _k.far_field_batch(params.packed, params.ztab, ti, pi_, tr, pr, out)
+    _k.far_field_batch(params.packed, params.ztab, params.gtab, ti, pi_, tr, pr, out)
     return out.reshape(shape + (3, 3))
 
 

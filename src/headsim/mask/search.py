@@ -1,0 +1,186 @@
+"""Least sealing strap force: the question the seed could not answer (Heinze ch. 1, ch. 6).
+
+The best mask seals with the least strap force. Sealing is a yes/no property of a fit
+(:attr:`FitResult.sealed`: contact pressure above the therapy pressure closes a loop around the
+airway), assumed monotone in the force (a mask that seals at F seals at every larger F). The search:
+
+1. **Bracket**: fit at ``start`` N; if it seals, halve the force until it leaks (or ``minimum`` is
+   reached: then the answer is "seals already at ``minimum``"); if it leaks, double it until it seals
+   (or ``maximum`` is passed: then the mask does not seal on this face up to ``maximum``).
+2. **Bisect** the bracket [leaks at F_lo, seals at F_hi] until ``F_hi - F_lo <= max(abs_tol,
+   rel_tol x F_hi)``. The answer is F_hi (a force that seals, at most the tolerance above the least
+   one); the pressure map at F_hi is reported.
+
+Every fit is warm-started from the converged fit of the nearest force already solved
+(:class:`headsim.mask.fit.FitState`); a failed warm start falls back to a cold one. Every solved force
+also gives a point of the force -> contact area and force -> peak pressure curves.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from headsim.errors import ParameterError
+from headsim.mask.fit import MAX_STRAP_FORCE, FitProblem, FitResult, check_force, problem_fit
+
+
+@dataclass(frozen=True)
+class SearchOptions:
+    """Options of :func:`least_seal_force` (forces in N).
+
+    start : first force tried; minimum, maximum : the search range (0 < minimum < maximum <= 200 N)
+    abs_tol : N and rel_tol : fraction -- stop when the bracket is narrower than max(abs_tol, rel_tol F)
+    max_solves : fits before giving up with the current bracket
+    """
+
+    start: float = 10.0
+    minimum: float = 1.0
+    maximum: float = 60.0
+    abs_tol: float = 0.5
+    rel_tol: float = 0.05
+    max_solves: int = 14
+
+    def __post_init__(self):
+        for name in ("start", "minimum", "maximum"):
+            check_force(getattr(self, name))
+        if not self.minimum <= self.start <= self.maximum or self.minimum >= self.maximum:
+            raise ParameterError(f"need minimum <= start <= maximum (and minimum < maximum), got "
+                                 f"{self.minimum}, {self.start}, {self.maximum} N")
+        if not (self.abs_tol > 0 and 0 <= self.rel_tol < 1):
+            raise ParameterError("abs_tol must be > 0 N and rel_tol in [0, 1)")
+        if self.max_solves < 2:
+            raise ParameterError("max_solves must be >= 2")
+
+
+@dataclass(frozen=True, eq=False)
+class CurvePoint:
+    """One solved force: N, cm^2, kPa, kPa, bool, s."""
+
+    force: float
+    contact_area_cm2: float
+    peak_pressure_kpa: float
+    mean_pressure_kpa: float
+    area_above_threshold_cm2: float
+    sealed: bool
+    seconds: float
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True, eq=False)
+class SearchResult:
+    """Outcome of :func:`least_seal_force`.
+
+    seal_force : N, the least sealing force found (within the tolerance above the true one), or None
+        when the mask does not seal up to ``options.maximum`` N
+    lower_bound : N, the largest force found not to seal (None when it seals at ``minimum``)
+    tolerance : N, the bracket width reached (F_hi - F_lo)
+    fit : FitResult at ``seal_force`` (or at the largest force tried when it never seals)
+    curve : CurvePoints sorted by force
+    n_solves : fits done; seconds : wall time
+    status : "sealed", "seals-at-minimum", "no-seal" or "max-solves" (bracket not narrowed enough)
+    """
+
+    seal_force: float | None
+    lower_bound: float | None
+    tolerance: float | None
+    fit: FitResult
+    curve: list[CurvePoint]
+    n_solves: int
+    seconds: float
+    status: str
+    options: SearchOptions = field(default_factory=SearchOptions)
+
+    def as_dict(self) -> dict:
+        return {
+            "least_seal_force_n": self.seal_force,
+            "largest_leaking_force_n": self.lower_bound,
+            "bracket_width_n": self.tolerance,
+            "status": self.status,
+            "n_solves": self.n_solves,
+            "search_seconds": self.seconds,
+            "tolerance": {"abs_n": self.options.abs_tol, "rel": self.options.rel_tol},
+            "range_n": [self.options.minimum, self.options.maximum],
+            "curve": [p.as_dict() for p in self.curve],
+        }
+
+
+def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions(),
+                     progress: Callable[[int, int, str], None] | None = None) -> SearchResult:
+    """Search the least strap force that seals (module doc).
+
+    problem : from :func:`headsim.mask.fit.prepare_fit`
+    progress : called as progress(solves_done, max_solves, message) after each fit
+    """
+    if options.maximum > MAX_STRAP_FORCE:
+        raise ParameterError(f"maximum force must be <= {MAX_STRAP_FORCE:g} N")
+    t0 = time.perf_counter()
+    fits: dict[float, FitResult] = {}
+
+    def solve(f: float) -> FitResult:
+        warm = None
+        if fits:
+            near = min(fits, key=lambda g: abs(g - f))
+            warm = fits[near].state
+        r = problem_fit(problem, f, warm_start=warm)
+        fits[f] = r
+        if progress is not None:
+            progress(len(fits), options.max_solves,
+                     f"{f:.2f} N: {'sealed' if r.sealed else 'leaks'}, peak {r.summary.peak_pressure / 1e3:.1f} kPa")
+        return r
+
+    lo = hi = None
+    f = options.start
+    r = solve(f)
+    status = "sealed"
+    if r.sealed:
+        hi = f
+        while len(fits) < options.max_solves:
+            f = max(f / 2.0, options.minimum)
+            r = solve(f)
+            if not r.sealed:
+                lo = f
+                break
+            hi = f
+            if f <= options.minimum:
+                status = "seals-at-minimum"
+                break
+    else:
+        lo = f
+        while len(fits) < options.max_solves:
+            if f >= options.maximum:
+                status = "no-seal"
+                break
+            f = min(2.0 * f, options.maximum)
+            r = solve(f)
+            if r.sealed:
+                hi = f
+                break
+            lo = f
+        else:
+            if hi is None:
+                status = "no-seal" if f >= options.maximum else "max-solves"
+    if hi is not None and lo is not None and status == "sealed":
+        while hi - lo > max(options.abs_tol, options.rel_tol * hi):
+            if len(fits) >= options.max_solves:
+                status = "max-solves"
+                break
+            mid = 0.5 * (lo + hi)
+            if solve(mid).sealed:
+                hi = mid
+            else:
+                lo = mid
+    curve = [CurvePoint(f, r.summary.contact_area_cm2, r.summary.peak_pressure / 1e3,
+                        r.summary.mean_pressure / 1e3, r.summary.area_above_threshold_cm2, r.sealed, r.seconds)
+             for f, r in sorted(fits.items())]
+    if hi is None:
+        best = fits[max(fits)]
+        return SearchResult(None, lo, None, best, curve, len(fits), time.perf_counter() - t0,
+                            status if status != "sealed" else "no-seal", options)
+    width = None if lo is None else hi - lo
+    return SearchResult(hi, lo, width, fits[hi], curve, len(fits), time.perf_counter() - t0, status, options)

@@ -1,0 +1,94 @@
+"""Mask report: result.json, PNGs, meshes, and report.html rendering in headless Chromium."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _fit_case import coarse_fit, coarse_problem
+from headsim.mask.report import write_fit_report
+from headsim.mask.search import CurvePoint, SearchOptions, SearchResult
+
+
+def _search_like(fits):
+    """A SearchResult built from real fits (the search itself is tested in test_search.py)."""
+    curve = [CurvePoint(f.force, f.summary.contact_area_cm2, f.summary.peak_pressure / 1e3,
+                        f.summary.mean_pressure / 1e3, f.summary.area_above_threshold_cm2, f.sealed, f.seconds)
+             for f in fits]
+    last = fits[-1]
+    return SearchResult(None, last.force, None, last, curve, len(fits), 0.0, "no-seal",
+                        SearchOptions(start=fits[0].force, maximum=max(f.force for f in fits)))
+
+
+@pytest.fixture(scope="module")
+def report_dir(tmp_path_factory):
+    p = coarse_problem()
+    fits = [coarse_fit(8.0)]
+    out = tmp_path_factory.mktemp("mask-report")
+    write_fit_report(out, p, fits[-1], _search_like(fits))
+    return out
+
+
+def test_report_files(report_dir):
+    for name in ("report.html", "result.json", "pressure.png", "curves.png", "face_deformed.ply",
+                 "mask_deformed.vtu", "pressure_kpa.txt"):
+        assert (report_dir / name).stat().st_size > 0, name
+    data = json.loads((report_dir / "result.json").read_text())
+    fit = coarse_fit(8.0)
+    assert data["fit"]["strap_force_n"] == 8.0
+    assert data["fit"]["contact_force_n"] == pytest.approx(fit.contact_force)
+    assert data["fit"]["peak_pressure_kpa"] == pytest.approx(fit.summary.peak_pressure / 1e3)
+    assert "search" in data and data["search"]["n_solves"] == 1
+    p = np.loadtxt(report_dir / "pressure_kpa.txt")
+    assert p.shape == fit.pressure.shape and np.allclose(p, fit.pressure / 1e3, rtol=1e-5)
+    html = (report_dir / "report.html").read_text()
+    assert "<script" in html and "plotly" in html.lower()
+    assert "https://cdn" not in html.split("<body>")[0]  # plotly.js embedded: works offline
+    assert "9.3-15.0 kPa" in html  # the published sanity figures are quoted
+
+
+def _chromium():
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    if os.environ.get("CI"):
+        pytest.fail("Chromium is required under CI (apt-get install chromium) but was not found")
+    pytest.skip("no Chromium on this machine (install Debian's `chromium` to run this check); not under CI")
+
+
+_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+          "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync",
+          "--hide-scrollbars"]
+
+
+def test_report_renders_in_headless_chromium(report_dir, tmp_path):
+    """report.html opens offline in headless Chromium, plotly draws the 3-D face (WebGL through
+    SwiftShader): the DOM has the plotly scene and no 'WebGL is not supported' message, and the
+    screenshot of the 3-D area is not uniform."""
+    exe = _chromium()
+    url = (report_dir / "report.html").as_uri()
+    common = _FLAGS + [f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=15000"]
+    dom = subprocess.run([exe, *common, "--dump-dom", url], capture_output=True, text=True, timeout=180)
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    assert "WebGL is not supported" not in dom.stdout
+    assert "gl-container" in dom.stdout or "scene" in dom.stdout  # plotly created the 3-D scene
+    assert "main-svg" in dom.stdout  # and drew the figures
+    shot = tmp_path / "shot.png"
+    run = subprocess.run([exe, *common, "--window-size=1200,1400", f"--screenshot={shot}", url],
+                         capture_output=True, text=True, timeout=180)
+    assert run.returncode == 0 and shot.exists(), run.stderr[-2000:]
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(shot)[..., :3]
+    # the numbers table sits on top; the 3-D scene fills the lower part of the first screen
+    lower = img[img.shape[0] // 2:, :, :]
+    assert lower.std() > 0.02, "the 3-D area is uniform: plotly/WebGL did not draw"
+    colours = np.unique((lower.reshape(-1, 3) * 255).astype(np.uint8), axis=0)
+    assert len(colours) > 50

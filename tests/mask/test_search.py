@@ -1,0 +1,103 @@
+"""Least sealing force search: bracketing + bisection logic, warm starts, and a real search."""
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _fit_case import coarse_problem
+from headsim.errors import ParameterError
+from headsim.mask import search as search_mod
+from headsim.mask.search import SearchOptions, least_seal_force
+
+
+@dataclass
+class _Summary:
+    contact_area_cm2: float
+    peak_pressure: float
+    mean_pressure: float
+    area_above_threshold_cm2: float
+
+
+class _FakeFit:
+    def __init__(self, force, threshold):
+        self.force = force
+        self.sealed = force >= threshold
+        self.summary = _Summary(force, 1e3 * force, 5e2 * force, 0.5 * force)
+        self.seconds = 0.0
+        self.state = ("state", force)
+
+
+def _fake_solver(threshold, calls):
+    def fake(problem, force, warm_start=None):
+        calls.append((force, warm_start))
+        return _FakeFit(force, threshold)
+    return fake
+
+
+@pytest.mark.parametrize("threshold", [3.3, 7.31, 10.0, 27.9])
+def test_bisection_brackets_the_sealing_threshold(monkeypatch, threshold):
+    """With a known sealing threshold F*, the answer F satisfies F* <= F <= F* + tolerance, the
+    reported lower bound leaks, and every fit after the first is warm-started from the nearest one."""
+    calls = []
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(threshold, calls))
+    opts = SearchOptions(start=10.0, abs_tol=0.25, rel_tol=0.0, max_solves=30)
+    res = least_seal_force(None, opts)
+    assert res.status == "sealed"
+    assert threshold <= res.seal_force <= threshold + 0.25
+    assert res.lower_bound < threshold
+    assert res.seal_force - res.lower_bound <= 0.25
+    assert res.n_solves == len(calls)
+    assert calls[0][1] is None
+    for i, (f, warm) in enumerate(calls[1:], start=1):
+        nearest = min((g for g, _ in calls[:i]), key=lambda g: abs(g - f))
+        assert warm == ("state", nearest)
+    forces = [c.force for c in res.curve]
+    assert forces == sorted(forces)
+
+
+def test_no_seal_up_to_the_maximum(monkeypatch):
+    calls = []
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(1e9, calls))
+    res = least_seal_force(None, SearchOptions(start=10.0, maximum=60.0))
+    assert res.seal_force is None and res.status == "no-seal"
+    assert max(f for f, _ in calls) == 60.0
+
+
+def test_seals_at_the_minimum(monkeypatch):
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(0.0, []))
+    res = least_seal_force(None, SearchOptions(start=10.0, minimum=1.0))
+    assert res.status == "seals-at-minimum" and res.seal_force == 1.0 and res.lower_bound is None
+
+
+def test_search_options_are_validated():
+    with pytest.raises(ParameterError):
+        SearchOptions(start=0.0)
+    with pytest.raises(ParameterError):
+        SearchOptions(maximum=500.0)
+    with pytest.raises(ParameterError):
+        SearchOptions(start=80.0, maximum=60.0)
+
+
+def test_real_search_is_consistent():
+    """On the coarse face model: the reported fit is the one at the reported force; curves grow with
+    force; the bracket is respected (leaks below, seals at the answer)."""
+    p = coarse_problem()
+    res = least_seal_force(p, SearchOptions(start=8.0, maximum=32.0, abs_tol=4.0, rel_tol=0.0, max_solves=5))
+    assert res.n_solves == len(res.curve) <= 5
+    forces = np.array([c.force for c in res.curve])
+    areas = np.array([c.contact_area_cm2 for c in res.curve])
+    assert np.all(np.diff(areas) > 0), "contact area must grow with the strap force"
+    if res.seal_force is not None:
+        assert res.fit.sealed and res.fit.force == res.seal_force
+        if res.lower_bound is not None:
+            assert not [c for c in res.curve if c.force == res.lower_bound][0].sealed
+    else:
+        assert not any(c.sealed for c in res.curve)
+    for c in res.curve:
+        assert c.peak_pressure_kpa >= c.mean_pressure_kpa > 0
+    assert res.as_dict()["n_solves"] == res.n_solves
+    assert set(forces) >= {8.0}
