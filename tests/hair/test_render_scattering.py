@@ -89,7 +89,7 @@ def test_seed_goniophotometry_peak_shifts_at_30_degrees():
     # seed: reversing the direction (tip → root) puts the peak at ≈ 36°
     th2, lobes2 = goniometric_curve(p, 30.0)
     assert 34.0 <= -th2[np.argmax(lobes2[:, 0, 0])] <= 38.0
-    assert trt_peak > r_peak + 10.0  # seed: ≈ 16° further
+    assert r_peak + 10.0 < trt_peak < r_peak + 25.0  # seed: ≈ 16° further (measured here: 18°)
     # coloured: the red TRT peak clearly exceeds the blue one for blond hair
     trt_max = lobes[:, 2].max(axis=0)
     assert trt_max[0] > 2 * trt_max[2]
@@ -113,7 +113,7 @@ def test_black_hair_has_no_secondary_peak():
 def test_kernels_match_reference(kw):
     p = MarschnerParams(sigma_a=(0.2, 0.5, 1.1), **kw)
     rng = np.random.default_rng(5)
-    for _ in range(25):
+    for _ in range(8):
         ti, tr = rng.uniform(-1.3, 1.3, 2)
         pi_, pr = rng.uniform(-np.pi, np.pi, 2)
         fast = far_field_lobes(p, ti, pi_, tr, pr)

@@ -11,7 +11,8 @@ airway), assumed monotone in the force (a mask that seals at F seals at every la
    rel_tol x F_hi)``. The answer is F_hi (a force that seals, at most the tolerance above the least
    one); the pressure map at F_hi is reported.
 
-Every fit is warm-started from the converged fit of the nearest force already solved
+A fit that does not converge (after the first) ends the search with status "solve-failed" and the
+bracket found so far, reported as such. Every fit is warm-started from the converged fit of the nearest force already solved
 (:class:`headsim.mask.fit.FitState`); a failed warm start falls back to a cold one. Every solved force
 also gives a point of the force -> contact area and force -> peak pressure curves.
 """
@@ -24,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from headsim.errors import ParameterError
+from headsim.errors import ConvergenceError, ParameterError
 from headsim.mask.fit import MAX_STRAP_FORCE, FitProblem, FitResult, check_force, problem_fit
 
 
@@ -83,7 +84,9 @@ class SearchResult:
     fit : FitResult at ``seal_force`` (or at the largest force tried when it never seals)
     curve : CurvePoints sorted by force
     n_solves : fits done; seconds : wall time
-    status : "sealed", "seals-at-minimum", "no-seal" or "max-solves" (bracket not narrowed enough)
+    status : "sealed", "seals-at-minimum", "no-seal", "max-solves" (bracket not narrowed enough) or
+        "solve-failed" (a fit after the first did not converge; the search stops with the bracket so far)
+    failures : messages of the fits that did not converge
     """
 
     seal_force: float | None
@@ -95,6 +98,7 @@ class SearchResult:
     seconds: float
     status: str
     options: SearchOptions = field(default_factory=SearchOptions)
+    failures: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {
@@ -102,6 +106,7 @@ class SearchResult:
             "largest_leaking_force_n": self.lower_bound,
             "bracket_width_n": self.tolerance,
             "status": self.status,
+            "failed_fits": list(self.failures),
             "n_solves": self.n_solves,
             "search_seconds": self.seconds,
             "tolerance": {"abs_n": self.options.abs_tol, "rel": self.options.rel_tol},
@@ -122,12 +127,20 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
     t0 = time.perf_counter()
     fits: dict[float, FitResult] = {}
 
-    def solve(f: float) -> FitResult:
+    failed: list[str] = []
+
+    def solve(f: float) -> FitResult | None:
         warm = None
         if fits:
             near = min(fits, key=lambda g: abs(g - f))
             warm = fits[near].state
-        r = problem_fit(problem, f, warm_start=warm)
+        try:
+            r = problem_fit(problem, f, warm_start=warm)
+        except ConvergenceError as e:
+            if not fits:
+                raise
+            failed.append(f"{f:.2f} N: {e}")
+            return None
         fits[f] = r
         if progress is not None:
             progress(len(fits), options.max_solves,
@@ -143,6 +156,9 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
         while len(fits) < options.max_solves:
             f = max(f / 2.0, options.minimum)
             r = solve(f)
+            if r is None:
+                status = "solve-failed"
+                break
             if not r.sealed:
                 lo = f
                 break
@@ -158,6 +174,9 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
                 break
             f = min(2.0 * f, options.maximum)
             r = solve(f)
+            if r is None:
+                status = "solve-failed"
+                break
             if r.sealed:
                 hi = f
                 break
@@ -171,16 +190,21 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
                 status = "max-solves"
                 break
             mid = 0.5 * (lo + hi)
-            if solve(mid).sealed:
+            r = solve(mid)
+            if r is None:
+                status = "solve-failed"
+                break
+            if r.sealed:
                 hi = mid
             else:
                 lo = mid
     curve = [CurvePoint(f, r.summary.contact_area_cm2, r.summary.peak_pressure / 1e3,
                         r.summary.mean_pressure / 1e3, r.summary.area_above_threshold_cm2, r.sealed, r.seconds)
              for f, r in sorted(fits.items())]
+    n = len(fits) + len(failed)
     if hi is None:
         best = fits[max(fits)]
-        return SearchResult(None, lo, None, best, curve, len(fits), time.perf_counter() - t0,
-                            status if status != "sealed" else "no-seal", options)
+        return SearchResult(None, lo, None, best, curve, n, time.perf_counter() - t0,
+                            status if status != "sealed" else "no-seal", options, failed)
     width = None if lo is None else hi - lo
-    return SearchResult(hi, lo, width, fits[hi], curve, len(fits), time.perf_counter() - t0, status, options)
+    return SearchResult(hi, lo, width, fits[hi], curve, n, time.perf_counter() - t0, status, options, failed)

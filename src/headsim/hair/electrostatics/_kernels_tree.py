@@ -348,3 +348,172 @@ def treecode_field_points(points, xs, ys, zs, q, start, end, first_child, n_chil
         out[i, 0] = ex
         out[i, 1] = ey
         out[i, 2] = ez
+
+
+@njit(fastmath=True, inline="always")
+def _m2l(nd, rx, ry, rz, order, mono, dipole, quad, loc):
+    """Add cell nd's field at the leaf centre and its first two derivatives (r = leaf centre - cell centre)
+    to loc (19,): E (3), J (9, row-major, dE_i/dx_j), H (upper 7 used as listed in _l2p).
+
+    E: monopole + dipole + quadrupole; J: monopole + dipole; H: monopole (see the module notes)."""
+    ex, ey, ez = _far_field(nd, rx, ry, rz, order, mono, dipole, quad)
+    loc[0] += ex
+    loc[1] += ey
+    loc[2] += ez
+    r2 = rx * rx + ry * ry + rz * rz
+    inv2 = 1.0 / r2
+    inv1 = np.sqrt(inv2)
+    inv3 = inv1 * inv2
+    inv5 = inv3 * inv2
+    inv7 = inv5 * inv2
+    q = mono[nd]
+    r0 = rx
+    r1 = ry
+    r2_ = rz
+    rr = (r0, r1, r2_)
+    # J_ij = q (d_ij / r^3 - 3 r_i r_j / r^5) + dipole part
+    for i in range(3):
+        for j in range(3):
+            v = -3.0 * q * rr[i] * rr[j] * inv5
+            if i == j:
+                v += q * inv3
+            loc[3 + 3 * i + j] += v
+    if order >= 1:
+        px = dipole[nd, 0]
+        py = dipole[nd, 1]
+        pz = dipole[nd, 2]
+        pp = (px, py, pz)
+        pr = px * rx + py * ry + pz * rz
+        for i in range(3):
+            for j in range(3):
+                v = 3.0 * (pp[j] * rr[i] + pp[i] * rr[j]) * inv5 - 15.0 * pr * rr[i] * rr[j] * inv7
+                if i == j:
+                    v += 3.0 * pr * inv5
+                loc[3 + 3 * i + j] += v
+    # H_ijk = q (-3 (d_ij r_k + d_ik r_j + d_jk r_i) / r^5 + 15 r_i r_j r_k / r^7), fully symmetric:
+    # store the 10 independent components (000, 001, 002, 011, 012, 022, 111, 112, 122, 222) at 12..21
+    t = 0
+    for i in range(3):
+        for j in range(i, 3):
+            for k in range(j, 3):
+                v = 15.0 * q * rr[i] * rr[j] * rr[k] * inv7
+                if i == j:
+                    v -= 3.0 * q * rr[k] * inv5
+                if i == k:
+                    v -= 3.0 * q * rr[j] * inv5
+                if j == k:
+                    v -= 3.0 * q * rr[i] * inv5
+                loc[12 + t] += v
+                t += 1
+
+
+@njit(fastmath=True, inline="always")
+def _l2p(loc, dx, dy, dz):
+    """E at leaf centre + (dx, dy, dz) from the local coefficients: E_i + J_ij d_j + 1/2 H_ijk d_j d_k."""
+    d = (dx, dy, dz)
+    ex = loc[0] + loc[3] * dx + loc[4] * dy + loc[5] * dz
+    ey = loc[1] + loc[6] * dx + loc[7] * dy + loc[8] * dz
+    ez = loc[2] + loc[9] * dx + loc[10] * dy + loc[11] * dz
+    # unpack the symmetric H
+    h000 = loc[12]
+    h001 = loc[13]
+    h002 = loc[14]
+    h011 = loc[15]
+    h012 = loc[16]
+    h022 = loc[17]
+    h111 = loc[18]
+    h112 = loc[19]
+    h122 = loc[20]
+    h222 = loc[21]
+    x = d[0]
+    y = d[1]
+    z = d[2]
+    ex += 0.5 * (h000 * x * x + h011 * y * y + h022 * z * z + 2.0 * (h001 * x * y + h002 * x * z + h012 * y * z))
+    ey += 0.5 * (h001 * x * x + h111 * y * y + h122 * z * z + 2.0 * (h011 * x * y + h012 * x * z + h112 * y * z))
+    ez += 0.5 * (h002 * x * x + h112 * y * y + h222 * z * z + 2.0 * (h012 * x * y + h022 * x * z + h122 * y * z))
+    return ex, ey, ez
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def treecode_field_groups_local(xs, ys, zs, q, start, end, first_child, n_child, centre, radius, mono, dipole,
+                                quad, leaves, theta, order, out, counts):
+    """As :func:`treecode_field_groups`, but a source cell with r_cell + r_leaf < theta d (d between the
+    centres) is converted once into a second-order local (Taylor) expansion of the field about the leaf
+    centre (cell-to-leaf, "M2L"), evaluated at the leaf's charges at the end (L2P). Cells that pass
+    only the per-target test are evaluated per target as before. counts (L, 3): M2L conversions,
+    per-target far evaluations, near pairs."""
+    for li in prange(leaves.shape[0]):
+        leaf = leaves[li]
+        ls = start[leaf]
+        le = end[leaf]
+        for t in range(ls, le):
+            out[t, 0] = 0.0
+            out[t, 1] = 0.0
+            out[t, 2] = 0.0
+        lcx = centre[leaf, 0]
+        lcy = centre[leaf, 1]
+        lcz = centre[leaf, 2]
+        lr = radius[leaf]
+        loc = np.zeros(22)
+        stack = np.empty(8 * 64 + 16, np.int64)
+        stack[0] = 0
+        sp = 1
+        n_m2l = 0
+        n_far = 0
+        n_near = 0
+        while sp > 0:
+            sp -= 1
+            nd = stack[sp]
+            dx = lcx - centre[nd, 0]
+            dy = lcy - centre[nd, 1]
+            dz = lcz - centre[nd, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if radius[nd] + lr < theta * d:
+                n_m2l += 1
+                _m2l(nd, dx, dy, dz, order, mono, dipole, quad, loc)
+            elif d - lr > 0.0 and radius[nd] < theta * (d - lr):
+                n_far += le - ls
+                for t in range(ls, le):
+                    ex, ey, ez = _far_field(nd, xs[t] - centre[nd, 0], ys[t] - centre[nd, 1],
+                                            zs[t] - centre[nd, 2], order, mono, dipole, quad)
+                    out[t, 0] += ex
+                    out[t, 1] += ey
+                    out[t, 2] += ez
+            elif n_child[nd] == 0:
+                s = start[nd]
+                e = end[nd]
+                n_near += (le - ls) * (e - s)
+                for t in range(ls, le):
+                    xt = xs[t]
+                    yt = ys[t]
+                    zt = zs[t]
+                    ex = 0.0
+                    ey = 0.0
+                    ez = 0.0
+                    for j in range(s, e):
+                        rx = xt - xs[j]
+                        ry = yt - ys[j]
+                        rz = zt - zs[j]
+                        r2 = rx * rx + ry * ry + rz * rz
+                        if r2 > 0.0:
+                            w = q[j] / (r2 * np.sqrt(r2))
+                            ex += w * rx
+                            ey += w * ry
+                            ez += w * rz
+                    out[t, 0] += ex
+                    out[t, 1] += ey
+                    out[t, 2] += ez
+            else:
+                fc = first_child[nd]
+                for c in range(n_child[nd]):
+                    stack[sp] = fc + c
+                    sp += 1
+        if n_m2l > 0:
+            for t in range(ls, le):
+                ex, ey, ez = _l2p(loc, xs[t] - lcx, ys[t] - lcy, zs[t] - lcz)
+                out[t, 0] += ex
+                out[t, 1] += ey
+                out[t, 2] += ez
+        counts[li, 0] = n_m2l
+        counts[li, 1] = n_far
+        counts[li, 2] = n_near

@@ -27,24 +27,25 @@ __all__ = ["CoulombOptions", "direct_field", "direct_forces", "fmm_field", "fmm_
 @dataclass(frozen=True)
 class CoulombOptions:
     """method: 'direct' (exact, O(n^2)), 'fmm3d' (fmm3dpy, precision ``eps``) or 'treecode'
-    (``theta``, ``order``, ``leaf_size``; see :mod:`.treecode`)."""
+    (``theta``, ``order``, ``leaf_size``, ``local``; see :mod:`.treecode`)."""
 
     method: str = "treecode"
     eps: float = 1e-3
     theta: float = 0.5
     order: int = 2
-    leaf_size: int = 64
+    leaf_size: int = 32
+    local: bool = True
 
     def __post_init__(self):
         if self.method not in ("direct", "fmm3d", "treecode"):
             raise ParameterError(f"unknown Coulomb method {self.method!r}: direct, fmm3d or treecode")
         if not (0.0 < self.eps < 1.0):
             raise ParameterError(f"FMM precision eps must lie in (0, 1), got {self.eps}")
-        TreecodeOptions(self.theta, self.order, self.leaf_size)
+        TreecodeOptions(self.theta, self.order, self.leaf_size, self.local)
 
     @property
     def treecode_options(self) -> TreecodeOptions:
-        return TreecodeOptions(self.theta, self.order, self.leaf_size)
+        return TreecodeOptions(self.theta, self.order, self.leaf_size, self.local)
 
 
 def _check(points, charges):

@@ -33,11 +33,15 @@ __all__ = ["TreecodeOptions", "Treecode"]
 
 @dataclass(frozen=True)
 class TreecodeOptions:
-    """theta: opening angle in (0, 1]; order: 0, 1 or 2; leaf_size: charges per leaf (>= 1)."""
+    """theta: opening angle in (0, 1]; order: 0, 1 or 2; leaf_size: charges per leaf (>= 1);
+    local: convert well-separated cells (r_cell + r_leaf < theta d) into a second-order local expansion
+    about the target leaf's centre (cell-to-leaf, evaluated once per leaf) instead of evaluating the
+    multipoles at every target."""
 
     theta: float = 0.5
     order: int = 2
-    leaf_size: int = 64
+    leaf_size: int = 32
+    local: bool = True
 
     def __post_init__(self):
         if not (0.0 < self.theta <= 1.0):
@@ -126,17 +130,24 @@ class Treecode:
         """(n, 3) V/m: the field at every charge due to all others (input order)."""
         th = self.options.theta if theta is None else float(theta)
         od = self.options.order if order is None else int(order)
-        TreecodeOptions(th, od, self.options.leaf_size)  # validate
+        TreecodeOptions(th, od, self.options.leaf_size, self.options.local)  # validate
         out = np.empty((self.n_charges, 3))
-        counts = np.zeros((self.leaves.shape[0], 2), np.int64)
-        _kt.treecode_field_groups(self.xs, self.ys, self.zs, self.qs, self.start, self.end, self.first_child,
-                                  self.n_child, self.centre, self.radius, self.mono, self.dipole, self.quad,
-                                  self.leaves, th, od, out, counts)
+        args = (self.xs, self.ys, self.zs, self.qs, self.start, self.end, self.first_child, self.n_child,
+                self.centre, self.radius, self.mono, self.dipole, self.quad, self.leaves, th, od, out)
+        if self.options.local:
+            counts = np.zeros((self.leaves.shape[0], 3), np.int64)
+            _kt.treecode_field_groups_local(*args, counts)
+        else:
+            counts = np.zeros((self.leaves.shape[0], 2), np.int64)
+            _kt.treecode_field_groups(*args, counts)
         E = np.empty_like(out)
         E[self.perm] = out
         E *= K_COULOMB
         if return_counts:
-            return E, {"far_evaluations": int(counts[:, 0].sum()), "near_pairs": int(counts[:, 1].sum())}
+            c = counts.sum(axis=0)
+            if self.options.local:
+                return E, {"cell_to_leaf": int(c[0]), "far_evaluations": int(c[1]), "near_pairs": int(c[2])}
+            return E, {"cell_to_leaf": 0, "far_evaluations": int(c[0]), "near_pairs": int(c[1])}
         return E
 
     def forces(self, theta: float | None = None, order: int | None = None) -> np.ndarray:

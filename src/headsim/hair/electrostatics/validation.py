@@ -24,17 +24,18 @@ def force_errors(forces, reference) -> dict:
     nf = np.linalg.norm(F, axis=1)
     nr = np.linalg.norm(R, axis=1)
     ok = nr > 0
-    cos = np.einsum("ij,ij->i", F[ok], R[ok]) / np.maximum(nf[ok] * nr[ok], 1e-300)
-    ang = np.arccos(np.clip(cos, -1.0, 1.0))
+    # atan2(|a x b|, a . b) is accurate for tiny angles (arccos of the cosine is not)
+    ang = np.arctan2(np.linalg.norm(np.cross(F[ok], R[ok]), axis=1), np.einsum("ij,ij->i", F[ok], R[ok]))
     rel = np.linalg.norm(F[ok] - R[ok], axis=1) / nr[ok]
     return {"mean_angle_rad": float(ang.mean()), "max_relative": float(rel.max()),
             "rms_relative": float(np.linalg.norm(F - R) / np.linalg.norm(R))}
 
 
 def accuracy_table(points, charges, fmm_eps=(1e-2, 1e-3, 1e-6, 1e-9), thetas=(0.8, 0.5, 0.3), orders=(0, 2),
-                   leaf_size: int = 64, reference=None) -> list[dict]:
+                   leaf_size: int = 32, reference=None, local=(False, True)) -> list[dict]:
     """Rows {method, setting, seconds, errors...} for fmm3dpy at every eps and the treecode at every
-    (theta, order), all against the direct sum (computed here unless ``reference`` is given)."""
+    (theta, order) with and without cell-to-leaf local expansions, all against the direct sum
+    (computed here unless ``reference`` is given)."""
     x = np.asarray(points, float)
     q = np.asarray(charges, float)
     t0 = time.perf_counter()
@@ -46,15 +47,16 @@ def accuracy_table(points, charges, fmm_eps=(1e-2, 1e-3, 1e-6, 1e-9), thetas=(0.
         f = fmm_forces(x, q, eps)
         rows.append({"method": "fmm3dpy", "setting": f"eps={eps:g}", "seconds": time.perf_counter() - t0,
                      **force_errors(f, ref)})
-    t0 = time.perf_counter()
-    tree = Treecode(x, q, TreecodeOptions(leaf_size=leaf_size))
-    build = time.perf_counter() - t0
-    for th in thetas:
-        for od in orders:
-            t0 = time.perf_counter()
-            f = q[:, None] * tree.field(th, od)
-            rows.append({"method": "treecode", "setting": f"theta={th:g}, order={od}",
-                         "seconds": time.perf_counter() - t0 + build, **force_errors(f, ref)})
+    for loc in local:
+        t0 = time.perf_counter()
+        tree = Treecode(x, q, TreecodeOptions(leaf_size=leaf_size, local=loc))
+        build = time.perf_counter() - t0
+        for th in thetas:
+            for od in orders:
+                t0 = time.perf_counter()
+                f = q[:, None] * tree.field(th, od)
+                rows.append({"method": "treecode" + (" + local" if loc else ""), "setting": f"theta={th:g}, order={od}",
+                             "seconds": time.perf_counter() - t0 + build, **force_errors(f, ref)})
     return rows
 
 

@@ -94,37 +94,39 @@ def _cubic_roots(a3, a1, a0):
     return 3, m * math.cos(t), m * math.cos(t - 2.0 * _PI / 3.0), m * math.cos(t - 4.0 * _PI / 3.0)
 
 
-@njit(cache=True, inline="always")
-def _root_term(p, g, a3, a1, n1, n2, sig, cos_tt, dmax, out):
-    if g < -0.5 * _PI or g > 0.5 * _PI:
-        return
-    h = math.sin(g)
-    cg = math.cos(g)
-    deriv = abs(a1 + 3.0 * a3 * g * g) / max(cg, 1e-12)
-    d = 1.0 / max(deriv, 1e-12)
-    if dmax > 0.0 and d > dmax:
-        d = dmax
-    f = fresnel(n1, n2, abs(g))
-    a = (1.0 - f) * (1.0 - f) * f ** (p - 1)
-    st = h / n1
-    ct = math.sqrt(max(0.0, 1.0 - st * st))
-    for ch in range(3):
-        out[ch] += 0.5 * a * math.exp(-p * sig[ch] * 2.0 * ct / cos_tt) * d
-
-
 @njit(cache=True)
 def delta_phi_exact(p, h, n1):
     """(6.4) Δφ(p,h) = 2pγ_t − 2γ_i + pπ with sin γ_i = h, n' sin γ_t = h."""
     return 2.0 * p * math.asin(h / n1) - 2.0 * math.asin(h) + p * _PI
 
 
+@njit(cache=True, inline="always")
+def _root_term(p, g, a3, a1, n1, n2, sig, cos_tt, out):
+    """Add ½ A T D of the path with γ_i = g to ``out`` (RGB); return its ray density D (0 if |g| > π/2)."""
+    if g < -0.5 * _PI or g > 0.5 * _PI:
+        return 0.0
+    h = math.sin(g)
+    cg = math.cos(g)
+    deriv = abs(a1 + 3.0 * a3 * g * g) / max(cg, 1e-12)
+    d = 1.0 / max(deriv, 1e-12)
+    f = fresnel(n1, n2, abs(g))
+    a = (1.0 - f) * (1.0 - f) * f ** (p - 1)
+    st = h / n1
+    ct = math.sqrt(max(0.0, 1.0 - st * st))
+    for ch in range(3):
+        out[ch] += 0.5 * a * math.exp(-p * sig[ch] * 2.0 * ct / cos_tt) * d
+    return d
+
+
 @njit(cache=True)
 def _lobe_roots_sum(p, dphi, n1, n2, sig, cos_tt, dmax, out):
-    """Far-field azimuthal lobe N_p(Δφ) for p ∈ {1, 2} (6.11), RGB into ``out`` (added).
+    """Far-field azimuthal lobe N_p(Δφ) for p ∈ {1, 2} (6.11), RGB into ``out`` (added; ``out`` must
+    hold only this lobe). Returns the total ray density ΣD over the roots.
 
-    Roots of the cubic Δφ(p,γ) = Δφ + 2πk; D = |dΔφ/dh|⁻¹ (clamped at ``dmax`` when dmax > 0);
-    A = (1−F)² F^{p−1} (6.8, F at entry = F at the internal interfaces by Fresnel symmetry);
-    T = exp(−σ_a 2 cos γ_t / cos θ_t)^p (6.9 with s_M = 2R cos γ_t, σ_a per radius)."""
+    Roots of the cubic Δφ(p,γ) = Δφ + 2πk; D = |dΔφ/dh|⁻¹; A = (1−F)² F^{p−1} (6.8, F at entry = F at the
+    internal interfaces by Fresnel symmetry); T = exp(−σ_a 2 cos γ_t / cos θ_t)^p (6.9 with s_M = 2R cos γ_t,
+    σ_a per radius). Caustic clamp (dmax > 0): the lobe is scaled by min(1, D_max/ΣD), a clamp of the
+    *total* density, which stays continuous where the two TRT caustics merge (n' → 2)."""
     a3, a1, a0 = cubic_coefficients(p, n1)
     base = dphi - _TWO_PI * math.floor(dphi / _TWO_PI)
     # the cubic's range: TT [2c, 2π − 2c]; TRT endpoints π + 4c (γ = π/2), 3π − 4c (γ = −π/2) and the
@@ -142,48 +144,46 @@ def _lobe_roots_sum(p, dphi, n1, n2, sig, cos_tt, dmax, out):
         hi = max(_PI + 4.0 * c, _TWO_PI + ext, 3.0 * _PI - 4.0 * c)
     k_lo = int(math.ceil((lo - base) / _TWO_PI - 1e-9))
     k_hi = int(math.floor((hi - base) / _TWO_PI + 1e-9))
+    dsum = 0.0
     for k in range(k_lo, k_hi + 1):
         nr, r0, r1, r2 = _cubic_roots(a3, a1, a0 - (base + _TWO_PI * k))
-        _root_term(p, r0, a3, a1, n1, n2, sig, cos_tt, dmax, out)
+        dsum += _root_term(p, r0, a3, a1, n1, n2, sig, cos_tt, out)
         if nr == 3:
-            _root_term(p, r1, a3, a1, n1, n2, sig, cos_tt, dmax, out)
-            _root_term(p, r2, a3, a1, n1, n2, sig, cos_tt, dmax, out)
+            dsum += _root_term(p, r1, a3, a1, n1, n2, sig, cos_tt, out)
+            dsum += _root_term(p, r2, a3, a1, n1, n2, sig, cos_tt, out)
+    if dmax > 0.0 and dsum > dmax:
+        f = dmax / dsum
+        for ch in range(3):
+            out[ch] *= f
+    return dsum
 
 
 @njit(cache=True)
 def caustic_energy(n1, n2, sig, cos_tt, dmax, nq, out):
-    """Energy the TRT ray-density clamp removes around one caustic, ½∫ A T (1 − D_max/D)₊ dh (RGB into
-    ``out``, midpoint rule with ``nq`` nodes in γ over the interval where |dΔφ/dh| < 1/D_max can hold),
-    and the caustic azimuth φ_c (returned). Digest §5.2, after Marschner 2003 §4.3."""
+    """Energy the TRT density clamp removes, ½∫ A T (1 − min(1, D_max/ΣD(Δφ(h)))) dh over h ∈ (−1, 1)
+    (midpoint rule with ``nq`` nodes, RGB into ``out``), and the caustic azimuth φ_c (returned; 0 ≡ 2π
+    when n' ≥ 2). Digest §5.2 ("remove the caustic, replace by an energy-preserving function")."""
     p = 2
     a3, a1, a0 = cubic_coefficients(p, n1)
     gc = math.sqrt(a1 / (-3.0 * a3)) if a1 > 0.0 else 0.0
     phic = a3 * gc ** 3 + a1 * gc + a0
     for ch in range(3):
         out[ch] = 0.0
-    inv = 1.0 / dmax
-    lo2 = (a1 - inv) / (-3.0 * a3)
-    hi2 = (a1 + inv) / (-3.0 * a3)
-    if hi2 <= 0.0:
-        return phic
-    g_lo = math.sqrt(max(0.0, lo2))
-    g_hi = min(math.sqrt(hi2), 0.5 * _PI)
-    if g_hi <= g_lo:
-        return phic
-    step = (g_hi - g_lo) / nq
+    scratch = np.zeros(3)
     for q in range(nq):
-        g = g_lo + (q + 0.5) * step
-        cg = math.cos(g)
-        deriv = abs(a1 + 3.0 * a3 * g * g) / max(cg, 1e-12)
-        d = 1.0 / max(deriv, 1e-12)
-        if d <= dmax:
+        h = -1.0 + (q + 0.5) * 2.0 / nq
+        g = math.asin(h)
+        dphi = a3 * g ** 3 + a1 * g + a0
+        for ch in range(3):
+            scratch[ch] = 0.0
+        dsum = _lobe_roots_sum(p, dphi, n1, n2, sig, cos_tt, 0.0, scratch)
+        if dsum <= dmax:
             continue
-        f = fresnel(n1, n2, g)
+        f = fresnel(n1, n2, abs(g))
         a = (1.0 - f) * (1.0 - f) * f
-        h = math.sin(g)
         st = h / n1
         ct = math.sqrt(max(0.0, 1.0 - st * st))
-        w = 0.5 * a * (1.0 - dmax / d) * cg * step
+        w = 0.5 * a * (1.0 - dmax / dsum) * (2.0 / nq)
         for ch in range(3):
             out[ch] += w * math.exp(-p * sig[ch] * 2.0 * ct / cos_tt)
     return phic
@@ -198,7 +198,8 @@ def _eta_star(eta, a, cos2phih):
 
 @njit(cache=True)
 def glint_table(prm, nt, nc, nq, gtab):
-    """Tabulate the caustic energy and φ_c over |θ_d| ∈ [0, π/2] (nt) × cos(φ_i + φ_r) ∈ [−1, 1] (nc;
+    """Tabulate the caustic energy (both caustics together) and φ_c over |θ_d| ∈ [0, π/2] (nt) ×
+    cos(φ_i + φ_r) ∈ [−1, 1] (nc;
     nc = 1 for circular fibres): ``gtab`` (nt, nc, 4) = (E_R, E_G, E_B, φ_c)."""
     e = np.zeros(3)
     dmax = prm[12] / prm[11]
@@ -236,7 +237,7 @@ def _glint_from_table(gtab, td, cos2phih, dphi, wc, out):
     w01 = (1 - tx) * ty
     w11 = tx * ty
     phic = w00 * gtab[i, j, 3] + w10 * gtab[i + 1, j, 3] + w01 * gtab[i, j1, 3] + w11 * gtab[i + 1, j1, 3]
-    shape = gauss_wrapped(wc, dphi - phic) + gauss_wrapped(wc, dphi + phic)
+    shape = 0.5 * (gauss_wrapped(wc, dphi - phic) + gauss_wrapped(wc, dphi + phic))
     for ch in range(3):
         e = w00 * gtab[i, j, ch] + w10 * gtab[i + 1, j, ch] + w01 * gtab[i, j1, ch] + w11 * gtab[i + 1, j1, ch]
         out[ch] += e * shape

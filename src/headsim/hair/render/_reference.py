@@ -1,7 +1,8 @@
 """Slow, plain-Python reference of the Marschner far field (Sobottka eq. 6.4–6.14) for the tests.
 
 Independent of the kernels where it matters: cubic roots by ``numpy.roots``, the caustic energy by
-adaptive ``scipy.integrate.quad``, the lobe normalisation Z_p by ``quad`` as well.
+adaptive ``scipy.integrate.quad_vec`` (the kernels tabulate it with a midpoint rule), the lobe
+normalisation Z_p by ``quad`` (the kernels tabulate it on a θ_i grid).
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import quad
+from scipy.integrate import quad, quad_vec
 
 
 def _bravais(eta, theta):
@@ -52,35 +53,45 @@ def _at(p, n1, n2, sig, g, cos_tt):
     return np.array([a * math.exp(-p * s * 2 * ct / cos_tt) for s in sig])
 
 
-def lobe_n(p, dphi, n1, n2, sig, cos_tt, dmax=None, wc=None):
-    """N_p(Δφ) RGB (6.11) by ``numpy.roots``; TRT clamp + glint when ``dmax`` is given."""
-    if p == 0:
-        g = -0.5 * ((dphi + math.pi) % (2 * math.pi) - math.pi)
-        return 0.5 * _at(0, n1, n2, sig, g, cos_tt) * 0.5 * math.cos(g)
+def _roots_terms(p, dphi, n1, n2, sig, cos_tt):
+    """[(½ A T (RGB), D)] over the real cubic roots γ ∈ [−π/2, π/2] of Δφ(p,γ) ≡ Δφ (mod 2π)."""
     a3, a1, a0 = _coef(p, n1)
-    out = np.zeros(3)
     base = dphi % (2 * math.pi)
+    terms = []
     for k in range(-1, 3):
         for r in np.roots([a3, 0.0, a1, a0 - base - 2 * math.pi * k]):
             if abs(r.imag) > 1e-9 or abs(r.real) > math.pi / 2:
                 continue
             g = r.real
-            d = _density(p, n1, g)
-            if dmax is not None:
-                d = min(d, dmax)
-            out += 0.5 * _at(p, n1, n2, sig, g, cos_tt) * d
+            terms.append((0.5 * _at(p, n1, n2, sig, g, cos_tt), _density(p, n1, g)))
+    return terms
+
+
+def lobe_n(p, dphi, n1, n2, sig, cos_tt, dmax=None, wc=None):
+    """N_p(Δφ) RGB (6.11) by ``numpy.roots``; for TRT with ``dmax`` the total density is clamped at
+    D_max and the removed energy (adaptive ``quad_vec`` over h) is put back as glints at ±φ_c."""
+    if p == 0:
+        g = -0.5 * ((dphi + math.pi) % (2 * math.pi) - math.pi)
+        return 0.5 * _at(0, n1, n2, sig, g, cos_tt) * 0.5 * math.cos(g)
+    terms = _roots_terms(p, dphi, n1, n2, sig, cos_tt)
+    out = sum((t * d for t, d in terms), np.zeros(3))
     if dmax is not None and p == 2:
+        dsum = sum(d for _, d in terms)
+        if dsum > dmax:
+            out = out * dmax / dsum
+        a3, a1, a0 = _coef(p, n1)
         gc = math.sqrt(a1 / (-3 * a3)) if a1 > 0 else 0.0
         phic = a3 * gc**3 + a1 * gc + a0
-        e = np.zeros(3)
-        for ch in range(3):
-            def integrand(g, ch=ch):
-                d = _density(p, n1, g)
-                if d <= dmax:
-                    return 0.0
-                return 0.5 * _at(p, n1, n2, sig, g, cos_tt)[ch] * (1 - dmax / d) * math.cos(g)
-            e[ch] = quad(integrand, 0.0, math.pi / 2, points=[gc], limit=200)[0]
-        out += e * (_gw(wc, dphi - phic) + _gw(wc, dphi + phic))
+
+        def removed(h):
+            g = math.asin(h)
+            ds = sum(d for _, d in _roots_terms(p, a3 * g**3 + a1 * g + a0, n1, n2, sig, cos_tt))
+            if ds <= dmax:
+                return np.zeros(3)
+            return 0.5 * _at(p, n1, n2, sig, g, cos_tt) * (1 - dmax / ds)
+
+        e = quad_vec(removed, -1.0, 1.0, epsrel=1e-5, limit=200)[0]
+        out = out + e * 0.5 * (_gw(wc, dphi - phic) + _gw(wc, dphi + phic))
     return out
 
 

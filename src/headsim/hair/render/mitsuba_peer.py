@@ -18,7 +18,7 @@ import numpy as np
 
 from headsim.errors import HeadsimError
 from headsim.hair.render.bvh import FibreAssembly
-from headsim.hair.render.renderer import Camera, Light, RenderOptions, RenderResult
+from headsim.hair.render.renderer import Camera, RenderOptions, RenderResult
 from headsim.hair.render.scattering import MarschnerParams
 
 __all__ = ["mitsuba_available", "chiang_longitudinal_roughness", "render_mitsuba", "write_curves"]

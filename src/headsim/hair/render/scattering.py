@@ -8,7 +8,9 @@ S(ω_i, ω_r) = Σ_{p ∈ R, TT, TRT} M_p(θ_i, θ_r) N_p(n'(θ_d), Δφ) / cos�
   at oblique incidence and exceed 1 by a few per cent, see the furnace tests).
 * N_p: root sum (6.11) with the corrected attenuation A(p,h) (6.7–6.8), absorption T (6.9) with
   σ_a/cos θ_t, Bravais indices n', n'' and the generalised Fresnel factor, Marschner's cubic Δφ(p,γ)
-  fit for TT/TRT, energy-preserving TRT caustic regularisation and the elliptic n*(φ_h) for TRT (6.12).
+  fit for TT/TRT, energy-preserving TRT caustic regularisation (total ray density clamped, the removed
+  energy returned as glints at ±φ_c; continuous where the caustics merge at n' = 2) and the elliptic
+  n*(φ_h) for TRT (6.12).
 * Near field (6.20): the same lobes for a given exit offset h across the fibre width, Δφ(p,h) exact,
   the azimuthal δ a Gaussian; its average over h equals the far-field lobe.
 
@@ -78,7 +80,8 @@ class MarschnerParams:
     sigma_a : RGB absorption per fibre radius (Marschner: 0.2 … ∞); see :func:`sigma_a_from_melanin`.
     eccentricity : axis ratio a of the elliptic cross-section for TRT (6.12), Marschner 0.85–1.
     glint_width_deg : w_c of the TRT caustic glint, Marschner 10°–25°.
-    dh_max : Δh_M, Marschner 0.5; the TRT ray density is clamped at D_max = Δh_M / w_c.
+    dh_max : Δh_M, Marschner 0.5; the total TRT ray density Σ|dΔφ/dh|⁻¹ is clamped at D_max = Δh_M / w_c
+        and the removed energy returns as Gaussian glints of width w_c at ±φ_c (energy-preserving).
     caustic : regularise the TRT caustic (clamp + energy-preserving glint); False keeps the raw root sum.
     near_field_width_deg : width of the azimuthal Gaussian replacing δ in the near field (6.20).
     normalise_longitudinal : scale each M_p by 1/Z_p(θ_i) so that the lobe never creates energy.
@@ -193,11 +196,11 @@ class MarschnerParams:
 
     @cached_property
     def gtab(self) -> np.ndarray:
-        """(91, 1 or 33, 4) float64 TRT caustic table: energy removed by the clamp (RGB) and φ_c, over
+        """(91, 1 or 17, 4) float64 TRT caustic table: energy removed by the clamp (RGB) and φ_c, over
         |θ_d| × cos(φ_i + φ_r) (the second axis only for elliptic fibres)."""
-        nc = 1 if self.eccentricity == 1.0 else 33
+        nc = 1 if self.eccentricity == 1.0 else 17
         g = np.zeros((91, nc, 4))
-        _k.glint_table(self.packed, 91, nc, 256, g)
+        _k.glint_table(self.packed, 91, nc, 2000, g)
         g.flags.writeable = False
         return g
 

@@ -1,0 +1,63 @@
+"""`headsim mask ...` and `headsim demo`: commands, bad input -> one-line error + exit 2, no partial output."""
+
+import json
+
+import pytest
+
+from headsim.cli import main
+from headsim.mesh.io import save_surface
+from headsim.mesh.primitives import icosphere
+
+
+def _run(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    out = capsys.readouterr()
+    return e.value.code, out.out, out.err
+
+
+def test_mask_list(capsys):
+    code, out, _ = _run(["mask", "list"], capsys)
+    assert code in (0, None)
+    for name in ("nasal-S", "nasal-M", "nasal-L", "oronasal-M"):
+        assert name in out
+
+
+def test_demo_is_registered(capsys):
+    code, out, _ = _run(["demo", "--help"], capsys)
+    assert code in (0, None) and "--out" in out
+
+
+@pytest.mark.parametrize("force", ["0", "-5", "500"])
+def test_bad_force_gives_exit_2_and_no_output(tmp_path, capsys, force):
+    out = tmp_path / "fit"
+    code, _, err = _run(["mask", "fit", "--force", force, "--out", str(out)], capsys)
+    assert code == 2 and "error:" in err and "force" in err
+    assert not out.exists()
+
+
+def test_not_a_face_gives_exit_2_and_no_output(tmp_path, capsys):
+    ball = tmp_path / "ball.stl"
+    save_surface(icosphere(0.3, 2), ball)
+    out = tmp_path / "fit"
+    code, _, err = _run(["mask", "fit", "--face", str(ball), "--force", "10", "--out", str(out)], capsys)
+    assert code == 2 and "error:" in err
+    assert not out.exists()
+    assert not list(tmp_path.glob(".fit.tmp-*"))
+
+
+def test_unknown_mask_gives_exit_2(tmp_path, capsys):
+    code, _, err = _run(["mask", "fit", "--mask", "nasal-XXL", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "unknown mask" in err
+
+
+def test_mask_fit_writes_the_report(tmp_path, capsys):
+    out = tmp_path / "fit"
+    code, stdout, err = _run(["mask", "fit", "--force", "8", "--layers", "1", "--crop", "6", "--mask-edge", "5",
+                              "--out", str(out)], capsys)
+    assert code in (0, None), err
+    for name in ("report.html", "result.json", "pressure.png", "face_deformed.ply", "mask_deformed.vtu"):
+        assert (out / name).exists(), name
+    data = json.loads((out / "result.json").read_text())
+    assert data["fit"]["force_balance_error"] < 0.01
+    assert ("SEALED" in stdout) == data["fit"]["sealed"]
