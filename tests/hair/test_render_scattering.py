@@ -177,3 +177,11 @@ def test_presets_and_unknown_preset():
     assert MarschnerParams.preset("black").sigma_a[0] > MarschnerParams.preset("blond").sigma_a[0]
     with pytest.raises(ParameterError):
         MarschnerParams.preset("green")
+
+
+def test_goniometric_figure_writes_png(tmp_path):
+    from headsim.hair.render.figures import goniometric_figure
+
+    peaks = goniometric_figure(tmp_path / "gonio.png", presets=("blond", "black"))
+    assert (tmp_path / "gonio.png").stat().st_size > 1000
+    assert peaks["blond"][1] > peaks["blond"][0]  # TRT beyond R
