@@ -89,9 +89,10 @@ def test_fmm3d_against_direct_sum(fibres_10k, eps):
     assert err["mean_angle_rad"] < eps
 
 
-def test_treecode_against_direct_sum(fibres_10k):
+@pytest.mark.parametrize("local", [False, True])
+def test_treecode_against_direct_sum(fibres_10k, local):
     x, q, ref = fibres_10k
-    tree = Treecode(x, q, TreecodeOptions(leaf_size=32))
+    tree = Treecode(x, q, TreecodeOptions(leaf_size=32, local=local))
     errs = {}
     for theta in (0.8, 0.5, 0.3):
         for order in (0, 2):

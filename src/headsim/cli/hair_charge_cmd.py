@@ -79,7 +79,7 @@ def charge_cmd(
     scalp_charge: float = typer.Option(None, help="scalp charge Q_S, statC (default: 0 bundle; head: the "
                                                     "total hair charge)"),
     method: str = typer.Option("treecode", help="Coulomb method: treecode | fmm3d | direct"),
-    theta: float = typer.Option(0.5, help="treecode opening angle"),
+    theta: float = typer.Option(0.3, help="treecode opening angle (0.3: ~3 digits)"),
     eps: float = typer.Option(1e-3, help="fmm3d precision"),
     gravity: bool = typer.Option(True, help="gravity along -y"),
     out: Path = typer.Option(..., help="output folder (replaced atomically on success)"),

@@ -57,3 +57,5 @@ def rod_cmd(
         files = write_trajectory(sc, traj, tmp, images=images)
     typer.echo(f"{sc.description}: {sc.n_steps} steps, mean Newton iterations {np.mean(traj.iterations):.2f}; "
                f"wrote {len(files)} files to {out}")
+
+__import__("headsim.cli.hair_collide_cmd", fromlist=["register"]).register(app)  # headsim hair collide

@@ -11,3 +11,22 @@ from headsim.collide.bvh import ClosestPoints, RayHitList, RayHits, TriangleBVH
 from headsim.collide.heightmap import Heightmap
 
 __all__ = ["TriangleBVH", "ClosestPoints", "RayHits", "RayHitList", "Heightmap"]
+
+# fibre collision detection (Sobottka 2008 ch. 7): fibres, bounding volumes, fibre BVHs, distance fields
+from headsim.collide.bounding_volumes import AABB, KDOP, OBB, BoundingVolume, Sphere, kdop_directions
+from headsim.collide.distance_field import (
+    GridDistanceField,
+    PlaneField,
+    SphereField,
+    mesh_distance_field,
+    obstacle_contacts,
+)
+from headsim.collide.fibre_bvh import VARIANTS, FibreBVH, QueryStats, RebuildPolicy, fibre_self_contacts
+from headsim.collide.fibres import FibreContacts, FibreSet, fibres_from_arrays, fibres_from_rods
+
+__all__ += [
+    "AABB", "KDOP", "OBB", "Sphere", "BoundingVolume", "kdop_directions",
+    "GridDistanceField", "PlaneField", "SphereField", "mesh_distance_field", "obstacle_contacts",
+    "FibreBVH", "VARIANTS", "QueryStats", "RebuildPolicy", "fibre_self_contacts",
+    "FibreSet", "FibreContacts", "fibres_from_arrays", "fibres_from_rods",
+]

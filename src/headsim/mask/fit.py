@@ -62,7 +62,7 @@ MAX_STRAP_FORCE = 200.0
 EXACT = True
 #: outer contact loop stops when refreshing the planes moves less than this fraction of F
 UPDATE_TOL = 2e-4
-MAXIT = 100
+MAXIT = 40
 #: Effective homogeneous facial soft-tissue modulus, Pa (module doc).
 TISSUE_MODULUS = 30e3
 TISSUE_POISSON = 0.49
@@ -101,7 +101,7 @@ class FitOptions:
     standoff: float = 0.02
     placement: str = "auto"
     preload: float = 1e-3
-    max_contact_updates: int = 30
+    max_contact_updates: int = 12
     balance_tolerance: float = 0.01
     rotate: bool = True
 

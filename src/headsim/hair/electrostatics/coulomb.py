@@ -31,7 +31,7 @@ class CoulombOptions:
 
     method: str = "treecode"
     eps: float = 1e-3
-    theta: float = 0.5
+    theta: float = 0.3
     order: int = 2
     leaf_size: int = 32
     local: bool = True
