@@ -21,7 +21,6 @@ def force_errors(forces, reference) -> dict:
     """dict(mean_angle_rad, max_relative, rms_relative) of forces (n, 3) against reference (n, 3)."""
     F = np.asarray(forces, float)
     R = np.asarray(reference, float)
-    nf = np.linalg.norm(F, axis=1)
     nr = np.linalg.norm(R, axis=1)
     ok = nr > 0
     # atan2(|a x b|, a . b) is accurate for tiny angles (arccos of the cosine is not)
