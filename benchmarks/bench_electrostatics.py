@@ -93,10 +93,12 @@ def main():
     err_tree = force_errors(E_tree[sub], E_ref)
     t_tree = c_build.wall + c_eval.wall
     cpu_tree = c_build.cpu + c_eval.cpu
-    print(f"treecode theta={args.theta} order={args.order} leaf={args.leaf} local={not args.no_local}: build {c_build.wall:.2f} s "
+    print(f"treecode theta={args.theta} order={args.order} leaf={args.leaf} local={not args.no_local}: "
+          f"build {c_build.wall:.2f} s "
           f"(CPU {c_build.cpu:.2f}), evaluation {c_eval.wall:.2f} s (CPU {c_eval.cpu:.2f}); "
           f"refit {c_refit.wall:.2f} s + evaluation {c_eval2.wall:.2f} s (CPU {c_refit.cpu + c_eval2.cpu:.2f})")
-    print(f"  cell-to-leaf expansions {counts['cell_to_leaf']:,} ({counts['cell_to_leaf'] / len(tree.leaves):.0f}/leaf), "
+    n_leaves = len(tree.leaves)
+    print(f"  cell-to-leaf expansions {counts['cell_to_leaf']:,} ({counts['cell_to_leaf'] / n_leaves:.0f}/leaf), "
           f"far-cell evaluations {counts['far_evaluations']:,} ({counts['far_evaluations'] / n:.0f}/charge), "
           f"near pairs {counts['near_pairs']:,} ({counts['near_pairs'] / n:.0f}/charge)")
     print(f"  errors at the subsample: mean angle {err_tree['mean_angle_rad']:.2e} rad, "

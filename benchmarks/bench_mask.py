@@ -123,7 +123,7 @@ def main(argv=None) -> None:
               f"contact force {r.contact_force:.4f} N (error {100 * r.balance_error:.2g} %), area "
               f"{s.contact_area_cm2:.2f} cm², peak {s.peak_pressure / 1e3:.1f} kPa, mean {s.mean_pressure / 1e3:.1f} kPa, "
               f"{'sealed' if r.sealed else 'leaks'}")
-    opts = SearchOptions(abs_tol=1.0 if args.quick else 0.5)
+    opts = SearchOptions(start=10.0, maximum=30.0, abs_tol=1.0 if args.quick else 0.5)
     res, t_search = _timed(least_seal_force, problem, opts)
     print(f"least-seal-force search: {t_search:6.2f} s, {res.n_solves} fits, status {res.status}, "
           f"seal force {res.seal_force} N (largest leaking {res.lower_bound} N)")

@@ -86,8 +86,8 @@ def test_real_search_is_consistent():
     """On the coarse face model: the reported fit is the one at the reported force; curves grow with
     force; the bracket is respected (leaks below, seals at the answer)."""
     p = coarse_problem()
-    res = least_seal_force(p, SearchOptions(start=8.0, maximum=32.0, abs_tol=4.0, rel_tol=0.0, max_solves=5))
-    assert res.n_solves == len(res.curve) <= 5
+    res = least_seal_force(p, SearchOptions(start=8.0, maximum=16.0, abs_tol=4.0, rel_tol=0.0, max_solves=3))
+    assert res.n_solves == len(res.curve) + len(res.failures) <= 3
     forces = np.array([c.force for c in res.curve])
     areas = np.array([c.contact_area_cm2 for c in res.curve])
     assert np.all(np.diff(areas) > 0), "contact area must grow with the strap force"

@@ -126,7 +126,8 @@ def charge_cmd(
         qs = scalp_charge * STATCOULOMB
     coulomb = CoulombOptions(method=method, eps=eps, theta=theta)
     opts = ChargingOptions(line_charge=lam, particle_density=per_cm_to_per_m(density), steps=steps,
-                           schedule=schedule, scalp_charge=qs, gravity=(0.0, -9.81, 0.0) if gravity else (0.0, 0.0, 0.0),
+                           schedule=schedule, scalp_charge=qs,
+                           gravity=(0.0, -9.81, 0.0) if gravity else (0.0, 0.0, 0.0),
                            coulomb=coulomb)
     t0 = time.perf_counter()
     n_incr = steps if schedule == "incremental" else 1

@@ -162,7 +162,7 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
                rigid_plane: Optional[str] = RIGID, thickness: Optional[float] = THICK, kind: str = KIND,
                placement: str = PLACEMENT,
                start: float = typer.Option(10.0, "--start", help="first force tried, N"),
-               maximum: float = typer.Option(60.0, "--max-force", help="largest force tried, N (<= 200)"),
+               maximum: float = typer.Option(30.0, "--max-force", help="largest force tried, N (<= 200)"),
                tol: float = typer.Option(0.5, "--tol", help="force tolerance, N (or 5 %, the larger)"),
                out: Path = typer.Option(..., "--out", help="output folder"),
                layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE,
@@ -202,4 +202,4 @@ def study(faces: Path = typer.Option(..., "--faces", help="folder of face meshes
 def demo(out: Path = typer.Option(Path("headsim-demo"), "--out", help="output folder")) -> None:
     """Least sealing force of the default mask (nasal-M) on the bundled face, with the report."""
     problem = _prepare(None, "m", "nasal-M", "mm", None, None, "nasal", "auto", 1, 8.0, 4.0, 980.665, 4.266)
-    run_seal_force(problem, out, 10.0, 60.0, 0.5)
+    run_seal_force(problem, out, 10.0, 30.0, 1.0)

@@ -8,11 +8,12 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   layer of ``tissue_thickness`` (Heinze §2.3.1: 1 cm, CT-measured mean around the nose) whose deep
   side is fixed bone (:func:`headsim.mesh.tissue.extrude_tissue_layer`). Material: stable
   neo-Hookean FEM (:mod:`headsim.solvers.fem`) with an effective homogeneous soft-tissue modulus
-  E = 30 kPa, nu = 0.45. In-vivo facial soft tissue (skin + fat + muscle) is reported in the 10-100
+  E = 30 kPa, nu = 0.49. In-vivo facial soft tissue (skin + fat + muscle) is reported in the 10-100
   kPa range; FE face-respirator studies found that the tissue property changes the peak contact
   pressure little (Lei, Yang & Zhuang, "Effects of strap location, friction and facial soft tissue
-  property on N95 FFR contact pressure", ASME IDETC-CIE 2015, V01AT02A046). nu = 0.45 (tissue is
-  nearly incompressible; 0.45 keeps linear tets free of volumetric locking).
+  property on N95 FFR contact pressure", ASME IDETC-CIE 2015, V01AT02A046). nu = 0.49: tissue is
+  nearly incompressible; with 0.45 (bulk modulus 100 kPa) the upper lip's tets were crushed to
+  inversion under the cushion's 100+ kPa peaks (linear tets lock a little at 0.49: slightly stiff).
 - **Mask**: the cushion is an FEM body with the mask's own material (:class:`MaskModel.material`);
   its rigid shell vertices are tied by a stiff spring to a rigid motion of the mask
   (:class:`ShellAttachment`; at equilibrium the shell carries the strap force exactly, whatever
@@ -20,14 +21,21 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   force F (N) -- force control, the energy gets ``-F u`` (:class:`headsim.solvers.RigidDriver`) --
   and, by default, a pitch and a yaw about the strap point (the airway centre) carrying no moment,
   so that the mask turns on its strap until the contact moments balance.
-- **Contact**: skin vertices against the cushion's closed surface with the lagged-plane penalty of
-  :class:`headsim.solvers.PlaneContact` (consistent directions, Heinze eqs. 3.9-3.13), penalty
-  kappa = ``penalty_factor`` x E_soft / h (Pa per m of penetration; h the median skin edge). Contact
-  pressure at a skin vertex = kappa x penetration (Pa), force = pressure x vertex area.
-- **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton + line search, contact active set
-  refreshed in an outer loop). From a cold start the mask is first pushed 1 mm in under
-  displacement control (so that the contact set is not empty), then released to force control. A
-  warm start (:class:`FitState` of an earlier fit on the same :class:`FitProblem`) skips that.
+- **Contact**: skin vertices against the cushion's skin-side surface with the lagged-plane penalty
+  of :class:`headsim.solvers.PlaneContact`, the planes taken from the cushion surface seen along
+  the approach axis (the seed's heightmap view, Heinze §3.3.1; :class:`AxialContact`) so that
+  contacts about to form are already in the Newton system; penalty kappa = ``penalty_factor`` x
+  E_soft / h (Pa per m of penetration; h the median skin edge). Contact pressure at a skin vertex =
+  kappa x penetration (Pa), force = pressure x vertex area. One-sided: cushion vertices are not
+  kept out of the skin (both meshes have 3-5 mm spacing).
+- **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton with the exact Hessian where it
+  gives descent, line search; contact planes refreshed in an outer loop), force-controlled from
+  first contact. A warm start (:class:`FitState` of an earlier fit on the same
+  :class:`FitProblem`) starts from that equilibrium; when it fails, a cold start is tried. The fit
+  is refused (ConvergenceError) when neither converges, when tets invert, or when the contact force
+  does not balance the strap force within ``balance_tolerance``.
+- **Limits**: the mask's pitch and yaw are linearised rotations (about 2 % stretch of the shell at
+  12 deg); no friction; the cropped skin edge is free (the bone under it is fixed).
 - **Placement**: the mask is placed as in the seed, 2 cm in front of the skin along the approach
   axis (:func:`headsim.mask.place_mask`); the quasi-static solve starts from first contact (the
   mask slid along the axis until its nearest skin-side vertex touches), since the unloaded approach
@@ -59,9 +67,12 @@ from headsim.mesh.tet import REGION_CUSHION, REGION_SHELL, REGION_TISSUE
 
 #: Largest strap force accepted, N (CPAP/NIV strap tensions are a few to ~30 N; 200 N is absurd).
 MAX_STRAP_FORCE = 200.0
+#: Newton first tries the unprojected Hessian (quadratic convergence in the compressed tissue; the
+#: element-projected one converged linearly in trials on the bundled face)
 EXACT = True
 #: outer contact loop stops when refreshing the planes moves less than this fraction of F
 UPDATE_TOL = 2e-4
+#: Newton iterations per contact update before a fit is declared not converging
 MAXIT = 40
 #: Effective homogeneous facial soft-tissue modulus, Pa (module doc).
 TISSUE_MODULUS = 30e3
@@ -82,7 +93,6 @@ class FitOptions:
     pressure_threshold : Pa, pressure-injury threshold for the "area above" number (32 mmHg)
     standoff : m, placement distance in front of the face (seed: 0.02), reported
     placement : "auto" or "as-is"
-    preload : m, displacement-controlled push before force control on a cold start
     max_contact_updates : outer contact iterations of the quasi-static solve
     balance_tolerance : relative mismatch of contact force and strap force above which the fit is
         refused (ConvergenceError)
@@ -100,14 +110,13 @@ class FitOptions:
     pressure_threshold: float = CAPILLARY_CLOSING_PA
     standoff: float = 0.02
     placement: str = "auto"
-    preload: float = 1e-3
     max_contact_updates: int = 12
     balance_tolerance: float = 0.01
     rotate: bool = True
 
     def __post_init__(self):
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
-                     "therapy_pressure", "pressure_threshold", "preload", "balance_tolerance"):
+                     "therapy_pressure", "pressure_threshold", "balance_tolerance"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ParameterError(f"{name} must be > 0, got {v}")

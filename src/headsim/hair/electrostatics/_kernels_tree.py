@@ -7,16 +7,23 @@ total charge, dipole p = sum q d, traceless quadrupole Q = sum q (3 d d^T - |d|^
 max |d| of the sphere that encloses its charges (d = x - c). Moments are computed directly from the
 charges of a cell (O(n depth)); a refit after deformation recomputes them with the same topology.
 
-Evaluation (target groups): for every leaf (a group of targets that are contiguous along the curve)
-the tree is traversed once; a source cell is accepted when r_cell < theta (|c_cell - c_leaf| - r_leaf),
-i.e. it is well separated from EVERY target of the leaf, and its expansion is evaluated at each of
-them; otherwise a leaf is summed directly (near field), an inner cell is opened. Fields are returned
-without K = 1/(4 pi eps0), in C/m^2.
+Evaluation (target groups, :func:`treecode_field_groups`): for every leaf (a group of targets that
+are contiguous along the curve) the tree is traversed once; a source cell is accepted when
+r_cell < theta (|c_cell - c_leaf| - r_leaf), i.e. it is well separated from EVERY target of the
+leaf, and its expansion is evaluated at each of them; otherwise a leaf is summed directly (near
+field), an inner cell is opened. Fields are returned without K = 1/(4 pi eps0), in C/m^2.
 
 Expansion about c, with r = x - c, r = |r| (potential phi = K (q/r + p.r/r^3 + r^T Q r / (2 r^5))):
   E_mono = q r / r^3
   E_dip  = 3 (p.r) r / r^5 - p / r^3
   E_quad = 5/2 (r^T Q r) r / r^7 - Q r / r^5
+
+Cell-to-leaf local expansions (:func:`treecode_field_groups_local`, the default): a cell with
+r_cell + r_leaf < theta d is converted once per leaf into a second-order Taylor expansion of the field
+about the leaf centre, E(L + delta) = E + J delta + H:delta delta / 2, with E from all multipoles,
+J = dE/dx from the monopole and dipole and H from the monopole. The omitted terms (quadrupole J,
+dipole H, third-order Taylor) are O(theta^3) relative to the cell's monopole field, like the
+truncation of the multipoles; cells that only pass the per-target test keep the per-target evaluation.
 """
 
 from __future__ import annotations
