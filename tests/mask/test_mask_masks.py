@@ -91,7 +91,22 @@ def test_saddle_is_deeper_at_the_cheeks(masks):
     v = m.tetmesh.vertices[m.contact_vertices]
     top = v[:, 1] > np.percentile(v[:, 1], 95)
     side = np.abs(v[:, 0]) > np.percentile(np.abs(v[:, 0]), 95)
-    assert v[side, 2].min() < v[top, 2].min() - 8e-3
+    assert v[side, 2].min() < v[top, 2].min() - 5e-3
+
+
+@pytest.mark.parametrize("name", ["nasal-M", "oronasal-M"])
+def test_size_m_cushion_follows_the_mean_face(masks, name, neutral_face, neutral_landmarks):
+    """Designed on the population mean face: placed automatically on it, the smallest skin gap of each
+    30-degree sector of the outline varies by less than 5 mm, well within what the cushion can
+    compress (it is 8 mm tall at the bridge and more elsewhere). The first design varied by 10-11 mm."""
+    from headsim.mask.placement import place_mask
+
+    m = masks[name]
+    gaps = place_mask(m, neutral_face, neutral_landmarks).gaps
+    p = m.tetmesh.vertices[m.contact_vertices]
+    angle = np.degrees(np.arctan2(p[:, 1] - p[:, 1].mean(), p[:, 0]))
+    sector_min = [gaps[(angle >= a) & (angle < a + 30) & np.isfinite(gaps)].min() for a in range(-180, 180, 30)]
+    assert max(sector_min) - min(sector_min) < 5e-3
 
 
 def test_split_prisms_is_conforming_for_any_numbering():

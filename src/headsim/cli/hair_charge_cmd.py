@@ -31,7 +31,10 @@ def _views(before, after, path: Path, title: str) -> None:
             ax.add_collection(LineCollection([p[:, [i, j]] for p in P[::step]], colors=colour, linewidths=0.4,
                                              alpha=0.7, label=label))
         ax.autoscale()
-        ax.set_aspect("equal")
+        x0, x1 = ax.get_xlim()
+        y0, y1 = ax.get_ylim()
+        if max(x1 - x0, y1 - y0) < 5 * min(x1 - x0, y1 - y0):  # keep thin bundles readable
+            ax.set_aspect("equal")
         ax.set_title(name)
         ax.set_xlabel("m")
         ax.legend(loc="lower right", fontsize=8)
