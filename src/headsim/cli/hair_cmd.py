@@ -59,3 +59,4 @@ def rod_cmd(
                f"wrote {len(files)} files to {out}")
 
 __import__("headsim.cli.hair_collide_cmd", fromlist=["register"]).register(app)  # headsim hair collide
+__import__("headsim.cli.hair_render_cmd", fromlist=["register"]).register(app)  # headsim hair render

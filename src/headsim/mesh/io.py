@@ -247,7 +247,7 @@ def save_surface(mesh: SurfaceMesh, path: str | os.PathLike, units: str | Units 
     if fmt == "gmsh":
         cell_data = {"gmsh:physical": [np.ones(mesh.n_triangles, dtype=np.int32)],
                      "gmsh:geometrical": [np.ones(mesh.n_triangles, dtype=np.int32)]}
-    out = meshio.Mesh(mesh.vertices * scale, [("triangle", mesh.triangles)], cell_data=cell_data)
+    out = meshio.Mesh(mesh.vertices * scale, [("triangle", mesh.triangles.astype(np.int32))], cell_data=cell_data)
     _write_meshio(out, path, fmt)
     return path
 
