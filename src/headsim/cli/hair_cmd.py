@@ -31,6 +31,8 @@ def rod_cmd(
     duration: float = typer.Option(0.0, min=0.0, help="simulated time, s (0: the scene's default)"),
     frames: int = typer.Option(24, min=2, help="number of recorded frames / images"),
     images: bool = typer.Option(True, help="write a PNG image sequence"),
+    render: bool = typer.Option(False, help="also write path-traced frames (Marschner model) to rendered/"),
+    preset: str = typer.Option("brown", help="hair colour preset for --render (blond, brown, black, red)"),
 ) -> None:
     """Run a rod scene; write the trajectory (NPZ and VTK polylines), plots and an image sequence."""
     import numpy as np
@@ -55,8 +57,21 @@ def rod_cmd(
         traj = run_scene(sc, record_every=every, progress=lambda i, n: progress.update(task, completed=i))
     with atomic_output_dir(out) as tmp:
         files = write_trajectory(sc, traj, tmp, images=images)
+        if render:
+            from headsim.hair.render.frames import render_frames
+
+            states = [traj.positions[k] if traj.interpolated is None else
+                      np.concatenate([traj.positions[k][:1], traj.interpolated[k]], axis=0)
+                      for k in range(len(traj.times))]
+            with Progress(TextColumn("[bold]rendering[/bold]"), BarColumn(),
+                          TextColumn("{task.completed}/{task.total} frames")) as progress:
+                task = progress.add_task("frames", total=len(states))
+                files += render_frames(states, tmp / "rendered", preset=preset,
+                                       progress=lambda i, n: progress.update(task, completed=i))
     typer.echo(f"{sc.description}: {sc.n_steps} steps, mean Newton iterations {np.mean(traj.iterations):.2f}; "
                f"wrote {len(files)} files to {out}")
 
-__import__("headsim.cli.hair_collide_cmd", fromlist=["register"]).register(app)  # headsim hair collide
-__import__("headsim.cli.hair_render_cmd", fromlist=["register"]).register(app)  # headsim hair render
+from headsim.cli import hair_collide_cmd, hair_render_cmd  # noqa: E402
+
+hair_collide_cmd.register(app)  # headsim hair collide
+hair_render_cmd.register(app)  # headsim hair render
