@@ -26,9 +26,10 @@ def test_charge_bundle_writes_pictures_and_numbers(app, tmp_path):
     out = tmp_path / "run"
     r = CliRunner().invoke(app, ["charge", "--scene", "bundle", "--scale", "0.02", "--segments", "10",
                                  "--length-cm", "10", "--density", "20", "--steps", "2", "--charge", "-7.7e-3",
-                                 "--method", "direct", "--out", str(out)])
+                                 "--method", "direct", "--render", "--out", str(out)])
     assert r.exit_code == 0, r.output
-    for name in ("before.png", "after.png", "field_map.png", "charging.json", "charging.npz"):
+    for name in ("before.png", "after.png", "field_map.png", "charging.json", "charging.npz",
+                 "rendered/frame_0000.png", "rendered/frame_0001.png"):
         assert (out / name).stat().st_size > 0
     d = json.loads((out / "charging.json").read_text())
     assert d["particles"] == 6 * 200

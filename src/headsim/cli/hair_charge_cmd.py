@@ -86,6 +86,9 @@ def charge_cmd(
     eps: float = typer.Option(1e-3, help="fmm3d precision"),
     gravity: bool = typer.Option(True, help="gravity along -y"),
     out: Path = typer.Option(..., help="output folder (replaced atomically on success)"),
+    render: bool = typer.Option(False, help="also write path-traced before/after frames (Marschner model) "
+                                            "to rendered/"),
+    preset: str = typer.Option("brown", help="hair colour preset for --render (blond, brown, black, red)"),
 ) -> None:
     """Charge the fibres (Algorithm 2), write before/after pictures, a field-strength map and numbers."""
     import json
@@ -180,6 +183,10 @@ def charge_cmd(
                             coulomb_forces=res.coulomb_forces, scalp_forces=res.scalp_forces, field_map=E,
                             field_u=gu, field_v=gv)
         (tmp / "charging.json").write_text(json.dumps(numbers, indent=2))
+        if render:
+            from headsim.hair.render.frames import render_frames
+
+            render_frames([res.positions_before, res.positions_after], tmp / "rendered", preset=preset)
     typer.echo(f"{sc.name}: {res.sampling.n_particles:,} charges, {n_incr} increments in {seconds:.1f} s; "
                f"|E| at 12 cm = {e_probe / 1e3:.2f} kV/m; tip spread {spread_before * 1e3:.2f} -> "
                f"{spread_after * 1e3:.2f} mm; wrote {out}")
