@@ -14,7 +14,7 @@ Measured in one process:
   collision force (eqs. 3.7-3.13, BVH + Moeller-Trumbore + BFS) every step, the strap force spread
   over the shell vertices. It runs a FIXED number of steps; its time to equilibrium is EXTRAPOLATED
   as (steps needed) x (time per step), steps needed = settling time / dt, dt = 0.9 x the explicit
-  stability limit (springs and collision springs), settling time = ln(1e6) / omega_min of the
+  stability limit (springs and collision springs), settling time = ln(1e6) / ω_min (lowest_angular_frequency) of the
   tissue (decay of a critically damped slowest mode to 1e-6; optimistic for the explicit loop).
   A search needs one such equilibrium per force tried; the seed's search would need at least as
   many equilibria as ours (stated as such).
@@ -30,23 +30,13 @@ import time
 
 import numpy as np
 
+from headsim.solvers.integrators import lowest_angular_frequency
+
 
 def _timed(fn, *a, **k):
     t = time.perf_counter()
     out = fn(*a, **k)
     return out, time.perf_counter() - t
-
-
-def omega_min(model) -> float:
-    """Lowest angular frequency (rad/s) of the fixed model: smallest eigenvalue of K v = w^2 M v."""
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
-
-    free = np.flatnonzero(np.repeat(~model.fixed, 3))
-    k = model.hessian(model.rest_positions).tocsc()[free][:, free]
-    m = np.repeat(model.mass, 3)[free]
-    vals = spla.eigsh(k, k=1, M=sp.diags(m).tocsc(), sigma=0.0, which="LM", return_eigenvectors=False)
-    return float(np.sqrt(max(vals[0], 1e-300)))
 
 
 def seed_loop(problem, force: float, n_steps: int):
@@ -92,7 +82,7 @@ def seed_loop(problem, force: float, n_steps: int):
     per_step = (time.perf_counter() - t) / n_steps
     tissue = mass_spring_from_tetmesh(TetMesh(m.rest_positions[:nt], m.tets[region == REGION_TISSUE],
                                               fixed=m.fixed[:nt]), material=mats[REGION_TISSUE])
-    w = omega_min(tissue)
+    w = lowest_angular_frequency(tissue)
     steps = (np.log(1e6) / w) / dt
     return per_step, dt, steps, steps * per_step
 

@@ -13,7 +13,7 @@ For each problem, in one process:
   old state) with the seed's consistent collision force (eqs. 3.7-3.13, BVH + Möller-Trumbore + BFS)
   every step. It runs a fixed number of steps; the time to equilibrium is EXTRAPOLATED as
   (steps needed) x (measured time per step), with steps needed = settling time / dt, dt = 0.9 x the
-  explicit stability limit, settling time = ln(1/tol) / omega_min of the supported body, tol = 1e-6 (the decay
+  explicit stability limit, settling time = ln(1/tol) / lowest_angular_frequency (ω_min) of the supported body, tol = 1e-6 (the decay
   of a critically damped slowest mode to the Newton tolerance; optimistic for the explicit loop,
   which the seed ran undamped and whose damping would lower the stable dt).
 - quasi-static Newton (``solve_quasi_static``, FEM, penalty contact): measured wall time to equilibrium.
@@ -29,14 +29,13 @@ import time
 from dataclasses import replace
 
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from headsim.mesh.tet import TetMesh
-from headsim.solvers.contact import PlaneContact, RigidDriver, SphereObstacle, solve_quasi_static, surface_vertex_areas
+from headsim.solvers.contact import PlaneContact, solve_quasi_static, surface_vertex_areas
 from headsim.solvers.contact_consistent import SeedCollisionForce
 from headsim.solvers.fem import fem_from_tetmesh
-from headsim.solvers.grids import ball_tetmesh, block_tetmesh, graded_coordinates, structured_tet_grid
-from headsim.solvers.integrators import ExplicitEuler, ImplicitEuler, critical_time_step
+from headsim.solvers.grids import ball_tetmesh, block_tetmesh
+from headsim.solvers.integrators import ExplicitEuler, ImplicitEuler, critical_time_step, lowest_angular_frequency
 from headsim.solvers.massspring import combine_mass_spring, mass_spring_from_tetmesh
 from headsim.solvers.materials import Material
 from headsim.solvers.newton import NewtonOptions, rigid_body_modes, solve_spd
@@ -45,7 +44,7 @@ from headsim.solvers.state import BodyState
 
 MAT = Material.from_kpa(10.0, 0.3, 1000.0)
 #: relative force residual both solvers are taken to equilibrium to (Newton's force tolerance; the
-#: explicit loop's settling time ln(1/tol) / omega_min of a critically damped slowest mode)
+#: explicit loop's settling time ln(1/tol) / ω_min of a critically damped slowest mode)
 SETTLE_TOLERANCE = 1e-6
 
 
@@ -53,17 +52,6 @@ def _timed(fn, *a, **k):
     t = time.perf_counter()
     out = fn(*a, **k)
     return out, time.perf_counter() - t
-
-
-def omega_min(model) -> float:
-    """Lowest angular frequency of the fixed model (rad/s): smallest eigenvalue of K v = w^2 M v."""
-    free = np.flatnonzero(np.repeat(~model.fixed, 3))
-    k = model.hessian(model.rest_positions).tocsc()[free][:, free]
-    m = np.repeat(model.mass, 3)[free]
-    import scipy.sparse as sp
-
-    vals = spla.eigsh(k, k=1, M=sp.diags(m).tocsc(), sigma=0.0, which="LM", return_eigenvectors=False)
-    return float(np.sqrt(max(vals[0], 1e-300)))
 
 
 def explicit_seed_loop(ms_model, surfaces, n_steps, k_coll, supported):
@@ -84,7 +72,7 @@ def explicit_seed_loop(ms_model, surfaces, n_steps, k_coll, supported):
     for _ in range(n_steps):
         state = solver.step(ms_model, state, dt, extra_forces=force)
     per_step = (time.perf_counter() - t) / n_steps
-    w = omega_min(supported)
+    w = lowest_angular_frequency(supported)
     steps_needed = (np.log(1.0 / SETTLE_TOLERANCE) / w) / dt
     return per_step, dt, steps_needed, steps_needed * per_step
 

@@ -6,7 +6,8 @@ import pytest
 from headsim.errors import DivergenceError, ParameterError
 from headsim.solvers._kernels.massspring import explicit_euler_step
 from headsim.solvers.grids import block_tetmesh
-from headsim.solvers.integrators import ExplicitEuler, ImplicitEuler, SymplecticEuler, critical_time_step, simulate
+from headsim.solvers.integrators import (ExplicitEuler, ImplicitEuler, SymplecticEuler, critical_time_step,
+                                        lowest_angular_frequency, simulate)
 from headsim.solvers.massspring import MassSpringModel, mass_spring_from_tetmesh
 from headsim.solvers.state import BodyState
 
@@ -90,6 +91,16 @@ def test_critical_time_step_matches_single_spring():
     m = MassSpringModel([[0, 0, 0], [1.0, 0, 0]], [1.0, 1.0], [[0, 1]], [1.0], [k], [0.0], [True, False],
                         np.zeros((2, 3)), [0, 0])
     assert critical_time_step(m) == pytest.approx(2 / np.sqrt(k))
+
+
+def test_lowest_angular_frequency_of_a_mass_on_three_orthogonal_springs():
+    # free mass m at the origin held by springs k_x, k_y, k_z to fixed points on the axes: at rest the
+    # stiffness is diag(k_x, k_y, k_z), so the lowest angular frequency is sqrt(min k / m)
+    m, ks = 0.5, [8.0, 2.0, 5.0]
+    v = [[0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]
+    model = MassSpringModel(v, [m, 1, 1, 1], [[0, 1], [0, 2], [0, 3]], [1.0, 1.0, 1.0], ks, [0.0] * 3,
+                            [False, True, True, True], np.zeros((4, 3)), [0] * 4)
+    assert lowest_angular_frequency(model) == pytest.approx(np.sqrt(min(ks) / m), rel=1e-9)
 
 
 def test_symplectic_euler_keeps_oscillator_energy_bounded_explicit_does_not():

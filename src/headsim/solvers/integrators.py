@@ -55,6 +55,20 @@ class ElasticModel(Protocol):
     def check_state(self, positions: np.ndarray) -> str | None: ...
 
 
+def lowest_angular_frequency(model: ElasticModel) -> float:
+    """Lowest angular frequency ω_min (rad/s) of the supported model at rest: the smallest eigenvalue
+    of K v = ω² M v over the free degrees of freedom (shift-invert Lanczos). ln(1/tol) / ω_min is the
+    settling time of an explicit loop's slowest, critically damped mode (used by the benchmarks to
+    extrapolate the seed-faithful loop)."""
+    import scipy.sparse.linalg as spla
+
+    free = np.flatnonzero(np.repeat(~model.fixed, 3))
+    k = model.hessian(model.rest_positions).tocsc()[free][:, free]
+    m = np.repeat(model.mass, 3)[free]
+    vals = spla.eigsh(k, k=1, M=sp.diags(m).tocsc(), sigma=0.0, which="LM", return_eigenvectors=False)
+    return float(np.sqrt(max(vals[0], 1e-300)))
+
+
 def critical_time_step(model: ElasticModel) -> float:
     """Upper bound-based estimate of the explicit stability limit (2 / omega_max without damping), s.
 
