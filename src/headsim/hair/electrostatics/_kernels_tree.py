@@ -237,6 +237,43 @@ def _far_field(nd, rx, ry, rz, order, mono, dipole, quad):
     return ex, ey, ez
 
 
+@njit(fastmath=True, inline="always")
+def _add_cell_far_field(nd, ls, le, xs, ys, zs, centre, order, mono, dipole, quad, out):
+    """Add cell ``nd``'s multipole field at the sorted targets ls..le-1 into ``out`` (C/m^2)."""
+    for t in range(ls, le):
+        ex, ey, ez = _far_field(nd, xs[t] - centre[nd, 0], ys[t] - centre[nd, 1], zs[t] - centre[nd, 2],
+                                order, mono, dipole, quad)
+        out[t, 0] += ex
+        out[t, 1] += ey
+        out[t, 2] += ez
+
+
+@njit(fastmath=True, inline="always")
+def _add_direct_field(ls, le, s, e, xs, ys, zs, q, out):
+    """Add the exact field of the sorted charges s..e-1 at targets ls..le-1 into ``out`` (C/m^2);
+    coincident pairs (a charge and itself) are skipped."""
+    for t in range(ls, le):
+        xt = xs[t]
+        yt = ys[t]
+        zt = zs[t]
+        ex = 0.0
+        ey = 0.0
+        ez = 0.0
+        for j in range(s, e):
+            rx = xt - xs[j]
+            ry = yt - ys[j]
+            rz = zt - zs[j]
+            r2 = rx * rx + ry * ry + rz * rz
+            if r2 > 0.0:
+                w = q[j] / (r2 * np.sqrt(r2))
+                ex += w * rx
+                ey += w * ry
+                ez += w * rz
+        out[t, 0] += ex
+        out[t, 1] += ey
+        out[t, 2] += ez
+
+
 @njit(parallel=True, fastmath=True, cache=True)
 def treecode_field_groups(xs, ys, zs, q, start, end, first_child, n_child, centre, radius, mono, dipole,
                           quad, leaves, theta, order, out, counts):
@@ -271,36 +308,12 @@ def treecode_field_groups(xs, ys, zs, q, start, end, first_child, n_child, centr
             d = np.sqrt(dx * dx + dy * dy + dz * dz)
             if d - lr > 0.0 and radius[nd] < theta * (d - lr):
                 n_far += le - ls
-                for t in range(ls, le):
-                    ex, ey, ez = _far_field(nd, xs[t] - centre[nd, 0], ys[t] - centre[nd, 1],
-                                            zs[t] - centre[nd, 2], order, mono, dipole, quad)
-                    out[t, 0] += ex
-                    out[t, 1] += ey
-                    out[t, 2] += ez
+                _add_cell_far_field(nd, ls, le, xs, ys, zs, centre, order, mono, dipole, quad, out)
             elif n_child[nd] == 0:
                 s = start[nd]
                 e = end[nd]
                 n_near += (le - ls) * (e - s)
-                for t in range(ls, le):
-                    xt = xs[t]
-                    yt = ys[t]
-                    zt = zs[t]
-                    ex = 0.0
-                    ey = 0.0
-                    ez = 0.0
-                    for j in range(s, e):
-                        rx = xt - xs[j]
-                        ry = yt - ys[j]
-                        rz = zt - zs[j]
-                        r2 = rx * rx + ry * ry + rz * rz
-                        if r2 > 0.0:
-                            w = q[j] / (r2 * np.sqrt(r2))
-                            ex += w * rx
-                            ey += w * ry
-                            ez += w * rz
-                    out[t, 0] += ex
-                    out[t, 1] += ey
-                    out[t, 2] += ez
+                _add_direct_field(ls, le, s, e, xs, ys, zs, q, out)
             else:
                 fc = first_child[nd]
                 for c in range(n_child[nd]):
@@ -480,36 +493,12 @@ def treecode_field_groups_local(xs, ys, zs, q, start, end, first_child, n_child,
                 _m2l(nd, dx, dy, dz, order, mono, dipole, quad, loc)
             elif d - lr > 0.0 and radius[nd] < theta * (d - lr):
                 n_far += le - ls
-                for t in range(ls, le):
-                    ex, ey, ez = _far_field(nd, xs[t] - centre[nd, 0], ys[t] - centre[nd, 1],
-                                            zs[t] - centre[nd, 2], order, mono, dipole, quad)
-                    out[t, 0] += ex
-                    out[t, 1] += ey
-                    out[t, 2] += ez
+                _add_cell_far_field(nd, ls, le, xs, ys, zs, centre, order, mono, dipole, quad, out)
             elif n_child[nd] == 0:
                 s = start[nd]
                 e = end[nd]
                 n_near += (le - ls) * (e - s)
-                for t in range(ls, le):
-                    xt = xs[t]
-                    yt = ys[t]
-                    zt = zs[t]
-                    ex = 0.0
-                    ey = 0.0
-                    ez = 0.0
-                    for j in range(s, e):
-                        rx = xt - xs[j]
-                        ry = yt - ys[j]
-                        rz = zt - zs[j]
-                        r2 = rx * rx + ry * ry + rz * rz
-                        if r2 > 0.0:
-                            w = q[j] / (r2 * np.sqrt(r2))
-                            ex += w * rx
-                            ey += w * ry
-                            ez += w * rz
-                    out[t, 0] += ex
-                    out[t, 1] += ey
-                    out[t, 2] += ez
+                _add_direct_field(ls, le, s, e, xs, ys, zs, q, out)
             else:
                 fc = first_child[nd]
                 for c in range(n_child[nd]):
