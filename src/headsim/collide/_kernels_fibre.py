@@ -254,6 +254,24 @@ def subtree_partition(left, right, lo, hi, n_parts):
     return np.array(roots, np.int64), np.array(sorted(top, reverse=True), np.int64)
 
 
+@njit(cache=True, inline="always")
+def _merge_children(kind, m, a, b, u, bv):
+    """MERGE (Alg. 5): bv[u] = the bounding volume of children a and b (slabs: m directions; 1 sphere;
+    otherwise OBB)."""
+    if kind == 0:
+        for k in range(m):
+            x = bv[a, k]
+            y = bv[b, k]
+            bv[u, k] = x if x < y else y
+            x = bv[a, m + k]
+            y = bv[b, m + k]
+            bv[u, m + k] = x if x > y else y
+    elif kind == 1:
+        sphere_merge(bv, a, b, bv, u)
+    else:
+        obb_merge(bv, a, b, bv, u)
+
+
 @njit(cache=True, parallel=True)
 def refit_layered(kind, dirs, nodes, seg_start, radius, perm, left, right, lo, hi, roots, top, bv):
     """Layered refit (Alg. 5): leaf BVs from the capsules, inner BVs = MERGE of the children.
@@ -280,31 +298,9 @@ def refit_layered(kind, dirs, nodes, seg_start, radius, perm, left, right, lo, h
                     obb_from_capsule(ax, ay, az, bx, by, bz, radius[s], bv, u)
                 continue
             b = right[u]
-            if kind == 0:
-                for k in range(m):
-                    x = bv[a, k]
-                    y = bv[b, k]
-                    bv[u, k] = x if x < y else y
-                    x = bv[a, m + k]
-                    y = bv[b, m + k]
-                    bv[u, m + k] = x if x > y else y
-            elif kind == 1:
-                sphere_merge(bv, a, b, bv, u)
-            else:
-                obb_merge(bv, a, b, bv, u)
+            _merge_children(kind, m, a, b, u, bv)
     for q in range(top.shape[0]):
         u = top[q]
         a = left[u]
         b = right[u]
-        if kind == 0:
-            for k in range(m):
-                x = bv[a, k]
-                y = bv[b, k]
-                bv[u, k] = x if x < y else y
-                x = bv[a, m + k]
-                y = bv[b, m + k]
-                bv[u, m + k] = x if x > y else y
-        elif kind == 1:
-            sphere_merge(bv, a, b, bv, u)
-        else:
-            obb_merge(bv, a, b, bv, u)
+        _merge_children(kind, m, a, b, u, bv)
