@@ -52,6 +52,16 @@ class GraftOptions:
     stabilisation_iterations : projections without velocity update first (Monkin §4.4)
     require_convergence : raise ConvergenceError when max_steps is reached before the stop rule holds
     parallel : Numba-parallel kernels (a gain only with free cores)
+    acceleration : "anderson" (default) finds the PBD rest state by Anderson acceleration of the step-from-
+        rest map (:mod:`headsim.solvers.pbd_anderson`: same constraints, same fixed points, stop rule
+        Σ|Φ(x) - x| < anderson_tolerance × mean edge × n); "none" is the seed's damped time stepping with the
+        Σ|x| rule. Measured (benchmarks/bench_graft.py): Anderson needs 2–3× fewer steps; on the 9,400-vertex
+        region it may end on another of the nearby equilibria (0.15 mm Hausdorff from the time-stepped one)
+    anderson_history : residuals combined by Anderson acceleration
+    anderson_tolerance : stop rule of the Anderson solve as a fraction of the mean edge length: stop when
+        Σ|Φ(x) - x| < anderson_tolerance × mean edge × n. Measured (benchmarks/bench_graft.py): 1e-5 ends
+        within 0.03 mm of the tightly converged fixed point (2,400 and 9,400 vertices), as close as the seed's
+        rule with ``stop_tolerance`` 3e-6 gets to its own (0.05 mm on 9,400 vertices)
     warm_start : start PBD from a bulge of the right volume (:func:`warm_start_positions`) instead of the
         flat region (the seed's start). Off by default: measured (benchmarks/bench_graft.py) it does not
         save steps on the 2,400-vertex region, and on the 9,400-vertex one it did not come within 0.1 mm
@@ -76,6 +86,9 @@ class GraftOptions:
     stabilisation_iterations: int = 0
     require_convergence: bool = True
     parallel: bool = False
+    acceleration: str = "anderson"
+    anderson_history: int = 8
+    anderson_tolerance: float = 1e-5
     warm_start: bool = False
 
     def __post_init__(self):
@@ -89,6 +102,8 @@ class GraftOptions:
             raise ParameterError(
                 "gravity and hydrostatic pressure need a physical spring compliance: give edge_compliance (m/N); "
                 "the default softness only shapes the volume-driven equilibrium")
+        if not self.anderson_tolerance > 0:
+            raise ParameterError(f"anderson_tolerance must be > 0, got {self.anderson_tolerance}")
         if self.closure not in ("centroid", "mirror"):
             raise ParameterError(f"closure must be 'centroid' or 'mirror', got {self.closure!r}")
         if not 0 <= self.fluid_density < 1e5:
@@ -108,6 +123,7 @@ def graft_pbd_options(options: GraftOptions) -> PBDOptions:
         edge_compliance=options.edge_compliance or 0.0, volume_compliance=0.0,
         stabilisation_iterations=options.stabilisation_iterations, stop_tolerance=options.stop_tolerance,
         min_steps=3, max_steps=options.max_steps, parallel=options.parallel, stop_patience=options.stop_patience,
+        acceleration=options.acceleration, anderson_history=options.anderson_history,
     )
 
 
@@ -203,7 +219,8 @@ def graft_problem(setup: GraftSetup, volume: float, options: GraftOptions = Graf
     model = _pbd_model(setup, options, setup.volume_before + volume)
     pbd_options = graft_pbd_options(options)
     mean_edge = float(np.mean(model.rest_length[~(model.fixed[model.edges[:, 0]] & model.fixed[model.edges[:, 1]])]))
-    pbd_options = replace(pbd_options, stop_tolerance=options.stop_tolerance * mean_edge)
+    fraction = options.anderson_tolerance if options.acceleration == "anderson" else options.stop_tolerance
+    pbd_options = replace(pbd_options, stop_tolerance=fraction * mean_edge)
     if options.edge_compliance is None:
         mean_mass = float(model.mass[~model.fixed].mean())
         pbd_options = replace(pbd_options, edge_compliance=options.spring_softness * options.dt**2 / mean_mass)
