@@ -254,6 +254,9 @@ class PBDOptions:
         same constraints and fixed points, stop rule Σ|Φ(x) - x| < stop_tolerance × n, no patience);
         only for quasi-static solves, the dynamics in between is not simulated
     anderson_history : number of previous residuals Anderson acceleration combines (m)
+    contact_mass_scaling : k, 1/m; particle–particle contacts share their corrections by the scaled masses
+        m_i exp(-k h_i), h_i the height along -gravity (mass scaling of Macklin et al. 2014 for stiff stacks:
+        lower particles act heavier, so a tall pile is held up within a few iterations); 0 = off
     """
 
     dt: float = 1.0 / 60.0
@@ -274,6 +277,7 @@ class PBDOptions:
     stop_patience: int = 1
     acceleration: str = "none"
     anderson_history: int = 5
+    contact_mass_scaling: float = 0.0
 
     def __post_init__(self):
         if not (self.dt > 0 and math.isfinite(self.dt)):
@@ -302,6 +306,8 @@ class PBDOptions:
             raise ParameterError(f"acceleration must be 'none' or 'anderson', got {self.acceleration!r}")
         if not 1 <= int(self.anderson_history) <= 50:
             raise ParameterError(f"anderson_history must be in [1, 50], got {self.anderson_history}")
+        if not (self.contact_mass_scaling >= 0 and math.isfinite(self.contact_mass_scaling)):
+            raise ParameterError(f"contact_mass_scaling must be >= 0 (1/m), got {self.contact_mass_scaling}")
         if not self.stop_tolerance > 0:
             raise ParameterError(f"stop_tolerance must be > 0 m, got {self.stop_tolerance}")
 
@@ -484,8 +490,14 @@ class PBDSolver:
             dims = np.maximum(((p.max(axis=0) + cell - lo) / cell).astype(np.int64) + 1, 1)
         start = np.zeros(int(np.prod(dims)) + 1, dtype=np.int64)
         _k.build_voxel_grid(p, lo, cell, dims, start, self._cells)
+        w = self._w
+        k = self.options.contact_mass_scaling
+        if k > 0 and self._has_external_force:
+            up = -self._gravity / np.linalg.norm(self._gravity)
+            h = p @ up
+            w = self._w * np.exp(k * (h - h.max()))  # ratios only: the top particle keeps its w
         kern = _k.project_particle_contacts_parallel if self.options.parallel else _k.project_particle_contacts
-        kern(p, self._w, r, lo, cell, dims, start, self._cells, self._contact)
+        kern(p, w, r, lo, cell, dims, start, self._cells, self._contact)
         p += self._contact
 
     # --- public ------------------------------------------------------------------------------------
