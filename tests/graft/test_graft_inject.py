@@ -148,3 +148,21 @@ def test_surface_distances_match_brute_force(face, setup):
     ab = ab[0] if isinstance(ab, tuple) else ab.distance
     ba = ba[0] if isinstance(ba, tuple) else ba.distance
     assert d.hausdorff == pytest.approx(max(np.max(ab), np.max(ba)), rel=1e-9)
+
+
+def test_hydrostatic_pressure_settles_independently_of_the_sweep_count(setup, face):
+    """Gravity + hydrostatic pressure of the fat (Monkin §4.3, 900 kg/m³) on the cheek: the solve settles,
+    keeps the injected volume, sags downwards (−y) and, once the sweeps of a step converge, does not depend
+    on their number (the rest state is then the force balance, not an artefact of the iteration)."""
+    no_load = inject_volume(setup, 5e-6)
+    loaded = {}
+    for sweeps in (200, 400):
+        opts = GraftOptions(gravity=True, fluid_density=900.0, edge_compliance=0.1, loaded_iterations=sweeps)
+        loaded[sweeps] = inject_volume(setup, 5e-6, opts)
+        assert loaded[sweeps].info.converged
+        assert volume_between(face, loaded[sweeps].face_after, setup.region) == pytest.approx(5e-6, rel=0.01)
+    assert surface_distances(loaded[200].face_after, loaded[400].face_after).hausdorff < 0.01e-3
+    ids = setup.region.interior_vertex_ids
+    shift = loaded[200].face_after.vertices[ids] - no_load.face_after.vertices[ids]
+    assert surface_distances(no_load.face_after, loaded[200].face_after).hausdorff > 1e-3  # a real load
+    assert shift[:, 1].mean() < 0  # it sags along gravity

@@ -43,6 +43,12 @@ class GraftOptions:
     dt : s; iterations : per step; damping : in [0, 1] (Monkin §4.4). Defaults chosen by measurement
         (benchmarks/bench_graft.py): 2 sweeps per step and damping 0.05 reach 0.1 mm of the equilibrium
         with half the sweeps of 4 sweeps and damping 0.1; damping 0 does not settle
+    loaded_iterations : sweeps per step used instead of ``iterations`` when gravity or hydrostatic pressure
+        is on. The rest state of XPBD is the force balance only when the sweeps of a step converge; with
+        external forces every step first moves the region by a·dt² and 2 sweeps do not undo it, so the steps
+        cycle or settle on a dt- and sweep-dependent shape. Measured on the bundled cheek (5 cm³, 900 kg/m³,
+        edge_compliance 0.1 m/N): 200 and 800 sweeps give the same surface (5.59 mm sag); with stiff springs
+        (1e-3 m/N) 50 → 200 sweeps still change it (0.72 → 0.29 mm), i.e. stiff nets need more sweeps
     stop_tolerance : Monkin §4.4 stop rule, as a fraction of the region's mean edge length: stop when the
         change of Σ|x| over a step is below stop_tolerance × mean edge length × number of particles
         (scaling with the edge length keeps the rule equally strict on refined meshes)
@@ -79,6 +85,7 @@ class GraftOptions:
     spring_softness: float = 1.5
     dt: float = 1e-2
     iterations: int = 2
+    loaded_iterations: int = 200
     damping: float = 0.05
     stop_tolerance: float = 3e-6
     stop_patience: int = 20
@@ -102,6 +109,8 @@ class GraftOptions:
             raise ParameterError(
                 "gravity and hydrostatic pressure need a physical spring compliance: give edge_compliance (m/N); "
                 "the default softness only shapes the volume-driven equilibrium")
+        if int(self.loaded_iterations) < 1:
+            raise ParameterError(f"loaded_iterations must be >= 1, got {self.loaded_iterations}")
         if not self.anderson_tolerance > 0:
             raise ParameterError(f"anderson_tolerance must be > 0, got {self.anderson_tolerance}")
         if self.closure not in ("centroid", "mirror"):
@@ -116,8 +125,9 @@ class GraftOptions:
 
 def graft_pbd_options(options: GraftOptions) -> PBDOptions:
     """The :class:`PBDOptions` of a graft solve."""
+    loaded = options.gravity or options.fluid_density > 0
     return PBDOptions(
-        dt=options.dt, iterations=options.iterations,
+        dt=options.dt, iterations=options.loaded_iterations if loaded else options.iterations,
         gravity=(0.0, -STANDARD_GRAVITY if options.gravity else 0.0, 0.0),
         damping=options.damping, method=options.method, xpbd=options.xpbd,
         edge_compliance=options.edge_compliance or 0.0, volume_compliance=0.0,
@@ -311,8 +321,8 @@ def inject_volume(setup: GraftSetup, volume: float, options: GraftOptions = Graf
             # has no attracting fixed point); 10 sweeps or dt = 1e-3 s settle, but on shapes 3.9 mm and
             # 0.6 mm from each other, so such a result would depend on dt and the sweep count
             why = (" With gravity or hydrostatic pressure each step first moves the region by a·dt² (1 mm at "
-                   "dt = 1e-2 s) and the few constraint sweeps of a step do not undo it, so the step map may "
-                   "have no rest state and any rest state it has depends on dt and iterations.")
+                   "dt = 1e-2 s); unless the sweeps of a step converge (loaded_iterations; stiff springs need "
+                   "more) the step map may have no rest state.")
         raise ConvergenceError(
             f"the graft solve did not meet the stop rule in {info.steps} steps (last change "
             f"{info.last_change:.3g} m); raise max_steps or damping.{why}")
