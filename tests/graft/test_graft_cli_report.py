@@ -76,6 +76,8 @@ def test_graft_command_errors_leave_no_output(tmp_path, capsys):
     assert code == 2 and not out.exists()
     code, io = _run(["graft", "--volume", "-1", "--out", str(out)], capsys)
     assert code == 2 and not out.exists()
+    code, io = _run(["graft", "--volume", "3", "--out", str(out), "--acceleration", "warp"], capsys)
+    assert code == 2 and "acceleration" in io.err and not out.exists()
     code, io = _run(["graft", "--volume", "3", "--out", str(out), "--markers", str(tmp_path / "none.json")], capsys)
     assert code == 2 and "not found" in io.err and not out.exists()
     assert not any(tmp_path.iterdir()) or all(p.name == "none.json" for p in tmp_path.iterdir())
