@@ -26,7 +26,7 @@ def _pick_region(markers_path: Path | None, region: str | None):
 
 def graft(
     face: Optional[Path] = typer.Option(None, help="face surface (.obj/.stl/.ply…); default: the bundled neutral face"),
-    units: str = typer.Option("m", help="unit of FACE: m, cm or mm (the bundled face is in m)"),
+    units: str = typer.Option("m", help="unit of FACE: m, dm, cm or mm (the bundled face is in m)"),
     markers: Optional[Path] = typer.Option(None, help="markers JSON; default: the bundled cheek markers"),
     region: Optional[str] = typer.Option(None, help="region name in the markers file (default: the first)"),
     volume: float = typer.Option(..., help="volume to inject, cm³"),
