@@ -47,17 +47,25 @@ def test_graft_command_writes_result_sidecar_report_and_pictures(tmp_path, capsy
     assert cmp["hausdorff_mm"] > 1.0
 
 
-def test_graft_command_in_millimetres(tmp_path, capsys, face):
+@pytest.mark.parametrize("unit,factor", [("mm", 1e3), ("dm", 10.0)])
+def test_graft_command_in_other_units(tmp_path, capsys, face, cheek_markers, unit, factor):
+    """Face and markers in mm, or in dm as in the seed's planning system (Monkin 2016 §5.4)."""
     from headsim.mesh.io import save_surface
 
-    mm = tmp_path / "face_mm.obj"
-    save_surface(face, mm, units="mm")
-    out = tmp_path / "mm"
-    code, io = _run(["graft", "--face", str(mm), "--units", "mm", "--volume", "2", "--out", str(out)], capsys)
+    path = tmp_path / f"face_{unit}.obj"
+    save_surface(face, path, units=unit)
+    markers = tmp_path / f"markers_{unit}.json"
+    markers.write_text(json.dumps({"units": unit, "regions": {
+        "left_cheek": {"points": (cheek_markers["left_cheek"].points * factor).tolist()}}}))
+    out = tmp_path / unit
+    code, io = _run(["graft", "--face", str(path), "--units", unit, "--markers", str(markers), "--volume", "2",
+                     "--out", str(out)], capsys)
     assert code == 0, io.err
-    after_mm = load_surface(out / "after.obj", units="mm")
-    assert np.max(np.abs(after_mm.vertices)) == pytest.approx(np.max(np.abs(face.vertices)), rel=0.05)
+    after = load_surface(out / "after.obj", units=unit)
+    assert np.max(np.abs(after.vertices)) == pytest.approx(np.max(np.abs(face.vertices)), rel=0.05)
     assert json.loads((out / "graft.json").read_text())["volume_change_cm3"] == pytest.approx(2.0, rel=0.01)
+    raw = np.loadtxt([ln[2:] for ln in (out / "after.obj").read_text().splitlines() if ln.startswith("v ")])
+    np.testing.assert_allclose(raw, after.vertices * factor, rtol=1e-6, atol=1e-9)  # written back in the unit
 
 
 def test_graft_command_errors_leave_no_output(tmp_path, capsys):
@@ -68,6 +76,8 @@ def test_graft_command_errors_leave_no_output(tmp_path, capsys):
     assert code == 2 and not out.exists()
     code, io = _run(["graft", "--volume", "-1", "--out", str(out)], capsys)
     assert code == 2 and not out.exists()
+    code, io = _run(["graft", "--volume", "3", "--out", str(out), "--acceleration", "warp"], capsys)
+    assert code == 2 and "acceleration" in io.err and not out.exists()
     code, io = _run(["graft", "--volume", "3", "--out", str(out), "--markers", str(tmp_path / "none.json")], capsys)
     assert code == 2 and "not found" in io.err and not out.exists()
     assert not any(tmp_path.iterdir()) or all(p.name == "none.json" for p in tmp_path.iterdir())

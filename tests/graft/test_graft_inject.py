@@ -41,10 +41,14 @@ def test_mirror_closure_injects_the_same_volume(left_cheek, face):
     assert volume_between(face, result.face_after, left_cheek) == pytest.approx(5e-6, rel=0.01)
 
 
-def test_same_region_on_the_subdivided_face_gives_the_same_result(face, left_cheek):
+@pytest.fixture(scope="module")
+def fine_cheek(face, left_cheek):
+    return transfer_region_to_midpoint_subdivision(left_cheek, subdivide_midpoint(face))
+
+
+def test_same_region_on_the_subdivided_face_gives_the_same_result(face, left_cheek, fine_cheek):
     """Seed ch. 6: the same region on the face and on its 1-to-4 subdivision, 10 cm³ → Hausdorff < 0.5 mm."""
-    fine = subdivide_midpoint(face)
-    fine_region = transfer_region_to_midpoint_subdivision(left_cheek, fine)
+    fine_region = fine_cheek
     assert fine_region.area == pytest.approx(left_cheek.area, rel=1e-12)
     assert len(fine_region.vertex_ids) > 3 * len(left_cheek.vertex_ids)
     coarse = inject_volume(prepare_graft(left_cheek), 10e-6)
@@ -52,6 +56,29 @@ def test_same_region_on_the_subdivided_face_gives_the_same_result(face, left_che
     d = surface_distances(coarse.face_after, dense.face_after)
     assert d.hausdorff < 0.5e-3
     assert np.max(np.abs(coarse.displacement)) > 5e-3  # a real bulge was compared
+
+
+@pytest.mark.parametrize("density", ["face", "face x4"])
+def test_anderson_path_reaches_the_rest_state_of_the_seeds_time_stepping(left_cheek, fine_cheek, density):
+    """The default solve (Anderson acceleration of the step-from-rest map) against the seed's damped time
+    stepping to its stop rule, 10 cm³: same surface within 0.05 mm (Hausdorff), fewer PBD steps, and the
+    seed's loop started at the fast result stays there (it is a rest state of the same PBD model)."""
+    from headsim.graft.plan import graft_problem
+    from headsim.solvers.pbd import PBDSolver, PBDState
+
+    setup = prepare_graft(left_cheek if density == "face" else fine_cheek)
+    fast = inject_volume(setup, 10e-6)
+    plain = inject_volume(setup, 10e-6, GraftOptions(acceleration="none"))
+    assert fast.info.converged and plain.info.converged
+    assert surface_distances(fast.face_after, plain.face_after).hausdorff < 0.05e-3
+    assert fast.info.steps < plain.info.steps
+    assert fast.volume_after - fast.volume_before == pytest.approx(10e-6, rel=1e-3)
+    model, options = graft_problem(setup, 10e-6, GraftOptions(acceleration="none"))
+    solver = PBDSolver(model, options)
+    state = PBDState.at_rest(fast.closed_after)
+    for _ in range(300):
+        state = solver.step(state)
+    assert np.abs(state.positions - fast.closed_after).max() < 0.01e-3
 
 
 def test_injection_parameter_errors(setup):
@@ -121,3 +148,21 @@ def test_surface_distances_match_brute_force(face, setup):
     ab = ab[0] if isinstance(ab, tuple) else ab.distance
     ba = ba[0] if isinstance(ba, tuple) else ba.distance
     assert d.hausdorff == pytest.approx(max(np.max(ab), np.max(ba)), rel=1e-9)
+
+
+def test_hydrostatic_pressure_settles_independently_of_the_sweep_count(setup, face):
+    """Gravity + hydrostatic pressure of the fat (Monkin §4.3, 900 kg/m³) on the cheek: the solve settles,
+    keeps the injected volume, sags downwards (−y) and, once the sweeps of a step converge, does not depend
+    on their number (the rest state is then the force balance, not an artefact of the iteration)."""
+    no_load = inject_volume(setup, 5e-6)
+    loaded = {}
+    for sweeps in (200, 400):
+        opts = GraftOptions(gravity=True, fluid_density=900.0, edge_compliance=0.1, loaded_iterations=sweeps)
+        loaded[sweeps] = inject_volume(setup, 5e-6, opts)
+        assert loaded[sweeps].info.converged
+        assert volume_between(face, loaded[sweeps].face_after, setup.region) == pytest.approx(5e-6, rel=0.01)
+    assert surface_distances(loaded[200].face_after, loaded[400].face_after).hausdorff < 0.01e-3
+    ids = setup.region.interior_vertex_ids
+    shift = loaded[200].face_after.vertices[ids] - no_load.face_after.vertices[ids]
+    assert surface_distances(no_load.face_after, loaded[200].face_after).hausdorff > 1e-3  # a real load
+    assert shift[:, 1].mean() < 0  # it sags along gravity

@@ -26,13 +26,15 @@ def _pick_region(markers_path: Path | None, region: str | None):
 
 def graft(
     face: Optional[Path] = typer.Option(None, help="face surface (.obj/.stl/.ply…); default: the bundled neutral face"),
-    units: str = typer.Option("m", help="unit of FACE: m, cm or mm (the bundled face is in m)"),
+    units: str = typer.Option("m", help="unit of FACE: m, dm, cm or mm (the bundled face is in m)"),
     markers: Optional[Path] = typer.Option(None, help="markers JSON; default: the bundled cheek markers"),
     region: Optional[str] = typer.Option(None, help="region name in the markers file (default: the first)"),
     volume: float = typer.Option(..., help="volume to inject, cm³"),
     out: Path = typer.Option(..., help="output folder (after.<ext>, graft.json, report.html, PNGs)"),
     closure: str = typer.Option("centroid", help="closed model of the region: centroid or mirror (seed §5.3)"),
     method: str = typer.Option("gauss_seidel", help="distance-constraint solver: gauss_seidel or jacobi"),
+    acceleration: str = typer.Option("anderson", help="rest state by Anderson acceleration (anderson) or by the "
+                                     "seed's damped time stepping (none)"),
     max_steps: int = typer.Option(20000, help="PBD step budget"),
     pictures: bool = typer.Option(True, help="write PNG pictures"),
 ) -> None:
@@ -56,7 +58,7 @@ def graft(
     mesh = load_surface(face_file, units=unit)
     marker_set, markers_file = _pick_region(markers, region)
     reg = region_from_markers(mesh, marker_set)
-    options = GraftOptions(closure=closure, method=method, max_steps=max_steps)
+    options = GraftOptions(closure=closure, method=method, max_steps=max_steps, acceleration=acceleration)
     setup = prepare_graft(reg, closure)
     typer.echo(f"{reg}; closed model {setup.volume_before * 1e6:.3f} cm³ ({closure})")
     with Progress(TextColumn("PBD"), BarColumn(), TextColumn("step {task.completed}"),

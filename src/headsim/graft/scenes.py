@@ -23,6 +23,11 @@ import numpy as np
 from headsim.mesh.primitives import icosphere
 from headsim.solvers.pbd import PBDModel, PBDOptions, PBDSolver, PBDState
 
+#: contact mass scaling of the box scene, k × particle diameter (Macklin et al. 2014), see run_box_scene.
+#: Measured (8,000 particles, 10 Jacobi sweeps, 300 steps): deepest overlap 26.5 % of the diameter without,
+#: 3.3 % with 0.5, 3.7 % with 1.0 (the pile still bouncing), unstable at 3
+MASS_SCALING_PER_DIAMETER = 0.5
+
 __all__ = ["SceneResult", "run_box_scene", "run_ball_scene", "run_cloth_scene", "save_scene_result"]
 
 
@@ -39,8 +44,13 @@ class SceneResult:
 
 def run_box_scene(n_particles: int = 8000, steps: int | None = None, *, radius: float = 0.4,
                   mass: float = 0.286, box_size: float = 12.0, dt: float = 1.0 / 60.0,
-                  iterations: int = 10, seed: int = 0) -> SceneResult:
-    """Particles dropped into a closed box (seed fig. 2). Returns positions and penetration numbers."""
+                  iterations: int = 10, seed: int = 0, mass_scaling: float | None = None) -> SceneResult:
+    """Particles dropped into a closed box (seed fig. 2). Returns positions and penetration numbers.
+
+    Contacts are projected by averaged Jacobi sweeps; a pile of ~47 layers (8,000 particles) needs the mass
+    scaling of Macklin et al. 2014 (``mass_scaling`` k in 1/m, default MASS_SCALING_PER_DIAMETER / diameter;
+    0 = off) to be held up within 10 sweeps per step.
+    """
     steps = 300 if steps is None else steps
     rng = np.random.default_rng(seed)
     spacing = 2.0 * radius * 1.05
@@ -57,7 +67,8 @@ def run_box_scene(n_particles: int = 8000, steps: int | None = None, *, radius: 
     model = PBDModel(mass=np.full(n_particles, mass), fixed=np.zeros(n_particles, bool), edges=np.zeros((0, 2)),
                      rest_length=np.zeros(0), plane_points=planes_p, plane_normals=planes_n,
                      collision_radius=radius, particle_contacts=True)
-    solver = PBDSolver(model, PBDOptions(dt=dt, iterations=iterations, damping=0.01))
+    k = (MASS_SCALING_PER_DIAMETER / (2 * radius)) if mass_scaling is None else mass_scaling
+    solver = PBDSolver(model, PBDOptions(dt=dt, iterations=iterations, damping=0.01, contact_mass_scaling=k))
     state = PBDState.at_rest(start)
     for _ in range(steps):
         state = solver.step(state)

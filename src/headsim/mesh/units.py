@@ -1,6 +1,6 @@
 """Length units at the edges of headsim (SI metres inside).
 
-Mesh files come in m, cm or mm; the caller states which. :func:`check_head_scale` flags a model
+Mesh files come in m, dm (the seed's planning system, Monkin 2016 §5.4), cm or mm; the caller states which. :func:`check_head_scale` flags a model
 whose size is off by a factor of 10, 100 or 1000 for the size the caller expects (a face is about
 0.15–0.25 m wide, a whole head about 0.2–0.35 m).
 """
@@ -20,23 +20,24 @@ class Units(str, enum.Enum):
     """A length unit a mesh file may be written in."""
 
     m = "m"
+    dm = "dm"
     cm = "cm"
     mm = "mm"
 
     @property
     def to_metres(self) -> float:
         """Factor that converts a length in this unit to metres."""
-        return {"m": 1.0, "cm": 1e-2, "mm": 1e-3}[self.value]
+        return {"m": 1.0, "dm": 1e-1, "cm": 1e-2, "mm": 1e-3}[self.value]
 
 
 def parse_units(units: str | Units) -> Units:
-    """Return :class:`Units` for ``"m"``, ``"cm"`` or ``"mm"``; raise :class:`UnitsError` otherwise."""
+    """Return :class:`Units` for ``"m"``, ``"dm"``, ``"cm"`` or ``"mm"``; raise :class:`UnitsError` otherwise."""
     if isinstance(units, Units):
         return units
     try:
         return Units(str(units).strip().lower())
     except ValueError:
-        raise UnitsError(f"unknown length unit {units!r}; use one of m, cm, mm") from None
+        raise UnitsError(f"unknown length unit {units!r}; use one of m, dm, cm, mm") from None
 
 
 #: Plausible extents (largest bounding-box side, metres) of models headsim works with.
@@ -86,7 +87,7 @@ def check_head_scale(
                 break
     message = (
         f"{source}: largest extent {extent:.4g} m is outside the plausible range "
-        f"{lo:g}–{hi:g} m for a head-sized model.{hint} State the file's unit with --units m|cm|mm."
+        f"{lo:g}–{hi:g} m for a head-sized model.{hint} State the file's unit with --units m|dm|cm|mm."
     )
     if strict or not math.isfinite(extent):
         raise UnitsError(message)

@@ -249,6 +249,14 @@ class PBDOptions:
     parallel : use the Numba-parallel kernels (a gain only with several free cores and large meshes)
     stop_patience : the stop rule must hold on this many consecutive steps (1 = the seed's rule; the
         change of Σ|x| also passes through zero whenever the motion turns, so > 1 makes the rule robust)
+    acceleration : "none" (the seed's time stepping to rest) or "anderson": find the rest state, i.e. a
+        fixed point of the step-from-rest map, by Anderson acceleration (:mod:`headsim.solvers.pbd_anderson`;
+        same constraints and fixed points, stop rule Σ|Φ(x) - x| < stop_tolerance × n, no patience);
+        only for quasi-static solves, the dynamics in between is not simulated
+    anderson_history : number of previous residuals Anderson acceleration combines (m)
+    contact_mass_scaling : k, 1/m; particle–particle contacts share their corrections by the scaled masses
+        m_i exp(-k h_i), h_i the height along -gravity (mass scaling of Macklin et al. 2014 for stiff stacks:
+        lower particles act heavier, so a tall pile is held up within a few iterations); 0 = off
     """
 
     dt: float = 1.0 / 60.0
@@ -267,6 +275,9 @@ class PBDOptions:
     max_steps: int = 10_000
     parallel: bool = False
     stop_patience: int = 1
+    acceleration: str = "none"
+    anderson_history: int = 5
+    contact_mass_scaling: float = 0.0
 
     def __post_init__(self):
         if not (self.dt > 0 and math.isfinite(self.dt)):
@@ -291,6 +302,12 @@ class PBDOptions:
             raise ParameterError("stabilisation_iterations, min_steps must be >= 0 and max_steps >= 1")
         if int(self.stop_patience) < 1:
             raise ParameterError(f"stop_patience must be >= 1, got {self.stop_patience}")
+        if self.acceleration not in ("none", "anderson"):
+            raise ParameterError(f"acceleration must be 'none' or 'anderson', got {self.acceleration!r}")
+        if not 1 <= int(self.anderson_history) <= 50:
+            raise ParameterError(f"anderson_history must be in [1, 50], got {self.anderson_history}")
+        if not (self.contact_mass_scaling >= 0 and math.isfinite(self.contact_mass_scaling)):
+            raise ParameterError(f"contact_mass_scaling must be >= 0 (1/m), got {self.contact_mass_scaling}")
         if not self.stop_tolerance > 0:
             raise ParameterError(f"stop_tolerance must be > 0 m, got {self.stop_tolerance}")
 
@@ -445,6 +462,23 @@ class PBDSolver:
         if len(m.plane_points):
             _k.project_planes(m.plane_points, m.plane_normals, m.collision_radius, self._w, p)
 
+    def _project_iterations(self, p: np.ndarray, dt: float) -> None:
+        """All solver iterations of one step (one fused kernel call for models with only distance and volume
+        constraints projected by serial Gauss–Seidel, the fat-grafting case; same operations and order)."""
+        o, m = self.options, self.model
+        if (o.method == "gauss_seidel" and not o.parallel and not m.particle_contacts and not self._extra
+                and not len(m.plane_points) and len(self._edges)):
+            if o.xpbd:
+                at_e, at_v, k = o.edge_compliance / dt**2, o.volume_compliance / dt**2, 1.0
+            else:
+                at_e, at_v, k = 0.0, 0.0, o.stiffness
+            _k.project_gs_volume_iterations(int(o.iterations), self._edges, self._rest, self._offsets, self._w, at_e, k,
+                                            self._lam_e, m.volume_triangles, m.volume_body, self._vertex_body,
+                                            m.volume_target, at_v, self._lam_v, self._grad, self._vol, self._den, p)
+            return
+        for _ in range(o.iterations):
+            self._project(p, dt)
+
     def _project_contacts(self, p: np.ndarray) -> None:
         r = self.model.collision_radius
         cell = 2.0 * r
@@ -456,8 +490,14 @@ class PBDSolver:
             dims = np.maximum(((p.max(axis=0) + cell - lo) / cell).astype(np.int64) + 1, 1)
         start = np.zeros(int(np.prod(dims)) + 1, dtype=np.int64)
         _k.build_voxel_grid(p, lo, cell, dims, start, self._cells)
+        w = self._w
+        k = self.options.contact_mass_scaling
+        if k > 0 and self._has_external_force:
+            up = -self._gravity / np.linalg.norm(self._gravity)
+            h = p @ up
+            w = self._w * np.exp(k * (h - h.max()))  # ratios only: the top particle keeps its w
         kern = _k.project_particle_contacts_parallel if self.options.parallel else _k.project_particle_contacts
-        kern(p, self._w, r, lo, cell, dims, start, self._cells, self._contact)
+        kern(p, w, r, lo, cell, dims, start, self._cells, self._contact)
         p += self._contact
 
     # --- public ------------------------------------------------------------------------------------
@@ -498,11 +538,32 @@ class PBDSolver:
             self._lam_e[:] = 0.0
             self._lam_v[:] = 0.0
             if np.isfinite(p).all():
-                for _ in range(o.iterations):
-                    self._project(p, dt)
+                self._project_iterations(p, dt)
         self._check(p, state)
         v = (1.0 - o.damping) * (p - x) / dt
         return PBDState(p, v, state.time + dt, state.steps + 1)
+
+    def rest_step(self, positions: np.ndarray) -> np.ndarray:
+        """(n, 3) m: positions after one step started at rest at ``positions`` (same as
+        ``step(PBDState.at_rest(positions)).positions``, without building states). Its fixed points are
+        the rest states of the solve (:mod:`headsim.solvers.pbd_anderson`)."""
+        o = self.options
+        dt = o.dt
+        x = np.ascontiguousarray(positions, dtype=np.float64)
+        with np.errstate(over="ignore", invalid="ignore"):
+            if self._has_external_force:
+                p = x + (dt * dt) * self.external_acceleration(x)  # zero on fixed particles
+            else:
+                p = x.copy()
+            self._lam_e[:] = 0.0
+            self._lam_v[:] = 0.0
+            if np.isfinite(p).all():
+                self._project_iterations(p, dt)
+        if not np.isfinite(p).all():
+            raise DivergenceError(
+                f"PBD produced non-finite positions in a step from rest (dt = {dt:g} s); reduce dt or check the "
+                "constraints")
+        return p
 
     def _check(self, p: np.ndarray, state: PBDState) -> None:
         if not np.isfinite(p).all():
@@ -513,7 +574,8 @@ class PBDSolver:
 
     def solve(self, state: PBDState, *, callback: Callable[[PBDState, float], None] | None = None,
               cancel: Callable[[], bool] | None = None) -> tuple[PBDState, SolveInfo]:
-        """Stabilise, then step until the stop rule of Monkin §4.4 holds.
+        """Stabilise, then step until the stop rule of Monkin §4.4 holds (with ``acceleration="anderson"``:
+        iterate to the rest state, see :mod:`headsim.solvers.pbd_anderson`).
 
         Stops when |Σ|x_k| - Σ|x_(k-1)|| < stop_tolerance × n on ``stop_patience`` consecutive steps (after at
         least ``min_steps`` steps), or after
@@ -523,6 +585,10 @@ class PBDSolver:
         o = self.options
         if o.stabilisation_iterations:
             state = self.stabilise(state)
+        if o.acceleration == "anderson":
+            from headsim.solvers.pbd_anderson import solve_anderson
+
+            return solve_anderson(self, state, history=o.anderson_history, callback=callback, cancel=cancel)
         threshold = o.stop_tolerance * self.model.n_particles
         previous = _k.sum_abs(state.positions)
         change = math.inf

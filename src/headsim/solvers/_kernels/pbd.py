@@ -421,3 +421,69 @@ def greedy_edge_colouring(edges, n_vertices, out):
         if c + 1 > n_colours:
             n_colours = c + 1
     return n_colours
+
+
+# --------------------------------------------------------------------------------------------------
+# Anderson acceleration of the PBD step map (headsim.solvers.pbd_anderson)
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def anderson_combine(g, dg, count, gamma, out):
+    """out = g - sum_k gamma[k] dg[:, k] over k < count (g (N,), dg (N, m), gamma (m,), out (N,))."""
+    for q in range(g.shape[0]):
+        s = g[q]
+        for k in range(count):
+            s -= gamma[k] * dg[q, k]
+        out[q] = s
+
+
+@njit(cache=True)
+def sum_abs_difference(a, b):
+    """sum |a - b| over all entries of two equal (N,) arrays."""
+    s = 0.0
+    for q in range(a.shape[0]):
+        s += abs(a[q] - b[q])
+    return s
+
+
+@njit(cache=True)
+def anderson_record(g, g_new, x_new, f, dF, dG, slot, used, row, rhs):
+    """One streaming pass: new residual, new Anderson differences, Gram row and right-hand side.
+
+    g (N,) previous value Φ(x); g_new = Φ(x_new), x_new (N,); f (N,) previous residual g - x on entry,
+    g_new - x_new on exit; dF, dG (N, m): column ``slot`` receives the residual and value differences
+    (only when ``used`` > 0); row[k] = dF[:, k] . dF[:, slot] and rhs[k] = dF[:, k] . f_new for k < used.
+    Returns Σ|g_new - x_new|.
+    """
+    res = 0.0
+    for k in range(used):
+        row[k] = 0.0
+        rhs[k] = 0.0
+    for q in range(g.shape[0]):
+        fn = g_new[q] - x_new[q]
+        res += abs(fn)
+        if used > 0:
+            d = fn - f[q]
+            dF[q, slot] = d
+            dG[q, slot] = g_new[q] - g[q]
+            for k in range(used):
+                row[k] += dF[q, k] * d
+                rhs[k] += dF[q, k] * fn
+        f[q] = fn
+    return res
+
+
+@njit(cache=True)
+def project_gs_volume_iterations(n_iterations, edges, rest, color_offsets, w, alpha_edge, stiffness, lam_e,
+                                 triangles, triangle_body, vertex_body, target, alpha_volume, lam_v, scratch_grad,
+                                 scratch_vol, scratch_denom, p):
+    """``n_iterations`` × (coloured Gauss–Seidel distance sweep, then volume projection), in place: the
+    solver iterations of one PBD step for a model with only distance and volume constraints (one call
+    instead of two per iteration). Arguments as in :func:`project_distance_coloured` and
+    :func:`project_volume` (volume stiffness 1)."""
+    for _ in range(n_iterations):
+        project_distance_coloured(edges, rest, color_offsets, w, alpha_edge, stiffness, lam_e, p)
+        if target.shape[0] > 0:
+            project_volume(triangles, triangle_body, vertex_body, target, w, alpha_volume, 1.0, lam_v, scratch_grad,
+                           scratch_vol, scratch_denom, p)
