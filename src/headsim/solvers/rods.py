@@ -31,7 +31,11 @@ Implementation notes
   holds at the nodes, so that d_t x = M^-1 (P d_s x + g) as in the seed's start-up rule (with a
   consistent contact force n, which a non-equilibrium start does not know).
 * After convergence the frames are re-integrated in s from the time-updated root frame and the
-  centreline follows by exact constant-curvature arcs; the root point moves by eq. 3.165.
+  centreline follows by constant-curvature arcs; the root point moves by eq. 3.165. With the box
+  scheme in s the arcs turn by the Cayley angle 2 atan(|kappa| ds / 2) instead of |kappa| ds
+  (``RodSolverOptions.frame_map``): that is how the discrete equations transport vectors along
+  the rod, so velocity and position kinematics agree (no drift of the tip of a twisted rod away
+  from its prescribed velocity).
 
 References: Sobottka 2008 (seed 002) ch. 3; Chung & Hulbert 1993; Jansen, Whiting & Hulbert 2000;
 Gobat & Grosenbaugh 2001; Simo & Vu-Quoc 1988.
@@ -60,6 +64,7 @@ __all__ = [
     "straight_frame",
     "kinetic_energy",
     "amplification_eigenvalues",
+    "FRAME_MAPS",
 ]
 
 
@@ -306,11 +311,19 @@ class RodState:
         return self.positions[:, -1, :]
 
 
-def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0) -> RodState:
+FRAME_MAPS = ("auto", "cayley", "exp")
+
+
+def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0, frame_map: str = "cayley") -> RodState:
     """A rest state: v = omega = 0, kappa = kappa0 (or ``kappa`` (F, N+1, 3)), n = 0; or a full ``x``.
 
-    Frames and positions follow from the root frame by exponential-map integration in s.
+    Frames and positions follow from the root frame by integration in s with constant-curvature
+    arcs: ``frame_map="cayley"`` (default; the map the solver uses with its default box scheme in
+    s, see :attr:`RodSolverOptions.frame_map`) or ``"exp"`` (exponential map, eq. 3.162). Use the
+    map of the solver that will step the state, or the first step re-integrates the shape.
     """
+    if frame_map not in ("cayley", "exp"):
+        raise ParameterError(f"frame_map must be 'cayley' or 'exp', got {frame_map!r}")
     F, nn = model.n_fibres, model.n_nodes
     if x is None:
         x = np.zeros((F, nn, 12))
@@ -323,7 +336,7 @@ def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0) -> Rod
     pos = np.empty((F, nn, 3))
     _k.integrate_frames_serial(np.ascontiguousarray(model.root_frame), np.ascontiguousarray(x[:, :, 6:9]),
                               np.ascontiguousarray(model.segment_length), frames,
-                              np.ascontiguousarray(model.root_position), pos)
+                              np.ascontiguousarray(model.root_position), pos, frame_map == "cayley")
     z = np.zeros((F, nn, 12))
     return RodState(x, z, z, z, frames, pos, time, False)
 
@@ -388,6 +401,12 @@ class RodSolverOptions:
     tolerance : max-norm of the residual, each component scaled by its characteristic size
     max_iterations : Newton iterations per step; armijo : iota of eq. 3.172; max_halvings : of mu
     raise_on_failure : raise ConvergenceError when a fibre does not converge
+    frame_map : how frames and centreline are integrated in s after a step: "cayley" (turning angle
+      2 atan(|kappa| ds / 2) per segment: the map by which the box scheme in s transports vectors,
+      so a rigid translation of a twisted rod is an exact discrete solution and the tip velocity
+      agrees with the motion of the tip position), "exp" (exponential map, eq. 3.162; the two
+      kinematics then differ at O((|kappa| ds)^2), i.e. position drift of strongly twisted rods) or
+      "auto" (default: "cayley" for the box scheme in s, alpha_s = beta_s = gamma_s = 1/2, else "exp")
     startup : first step of a fresh state: "backward_euler" (default; needs no derivatives and finds
       a consistent contact force n) or "seed" (Sobottka Algorithm 1, i = 0: d_s x from the nodal
       values (central differences), d_t x = M^-1 (P d_s x + g) for v, omega, kappa and d_t n = 0,
@@ -401,12 +420,25 @@ class RodSolverOptions:
     max_halvings: int = 12
     raise_on_failure: bool = True
     startup: str = "backward_euler"
+    frame_map: str = "auto"
 
     def __post_init__(self):
+        if self.frame_map not in FRAME_MAPS:
+            raise ParameterError(f"frame_map must be one of {FRAME_MAPS}, got {self.frame_map!r}")
         if not (self.tolerance > 0 and self.max_iterations >= 1 and 0 < self.armijo < 0.5):
             raise ParameterError("tolerance > 0, max_iterations >= 1 and 0 < armijo < 0.5 required")
         if self.startup not in ("backward_euler", "seed"):
             raise ParameterError(f"startup must be 'backward_euler' or 'seed', got {self.startup!r}")
+
+
+    @property
+    def resolved_frame_map(self) -> str:
+        """"cayley" or "exp": the frame map ``frame_map`` stands for with these coefficients."""
+        if self.frame_map != "auto":
+            return self.frame_map
+        c = self.coefficients
+        box = all(abs(a - 0.5) < 1e-15 for a in (c.alpha_s, c.beta_s, c.gamma_s))
+        return "cayley" if box else "exp"
 
 
 @dataclass(frozen=True)
@@ -528,7 +560,8 @@ class ImplicitRodSolver:
         r0 = state.positions[:, 0] + 0.5 * dt * (v_new + v_old)
         integ = _k.integrate_frames_batch if F >= PARALLEL_MIN_FIBRES else _k.integrate_frames_serial
         integ(np.ascontiguousarray(R[:, 0]), np.ascontiguousarray(x[:, :, 6:9]),
-                                  np.ascontiguousarray(model.segment_length), frames, r0, pos)
+                                  np.ascontiguousarray(model.segment_length), frames, r0, pos,
+                                  self.options.resolved_frame_map == "cayley")
         return RodState(x, xt, xs, g, frames, pos, state.time + dt, True), report
 
 

@@ -688,11 +688,31 @@ def newton_step(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
 
 
 @njit(cache=True)
-def integrate_frames(R0, kappa, ds, R, r0, r):
+def cayley_angle_scale(theta_norm):
+    """2 atan(t / 2) / t: the rotation angle of the Cayley transform cay(hat(theta)) =
+    (I - hat(theta) / 2)^-1 (I + hat(theta) / 2) over |theta| = t (its axis is theta's)."""
+    if theta_norm < 1e-12:
+        return 1.0
+    return 2.0 * np.arctan(0.5 * theta_norm) / theta_norm
+
+
+@njit(cache=True)
+def integrate_frames(R0, kappa, ds, R, r0, r, cayley=False):
     """Frames and centreline by integration in s (eqs. 3.162-3.164, tangent integration §3.4.6).
 
     R0 (3, 3) root frame; kappa (N+1, 3) 1/m (segment curvature = mean of its two nodes); ds m;
     out R (N+1, 3, 3); r0 (3,) root position m; out r (N+1, 3) m. Segments are exact constant-curvature arcs.
+
+    cayley=False: R_j = R_{j-1} exp(ds hat(kappa_mean)) (Rodrigues, eq. 3.162).
+    cayley=True: R_j = R_{j-1} cay(ds hat(kappa_mean)), i.e. the arc's turning angle |kappa| ds is
+    replaced by 2 atan(|kappa| ds / 2). This is the map by which the box scheme in s
+    (alpha_s = beta_s = gamma_s = 1/2) transports vectors along the rod: for constant kappa its
+    link rows read (I + ds/2 hat(kappa)) y_j = (I - ds/2 hat(kappa)) y_{j-1} for the local
+    components y of a vector that is constant in space (the velocity of a rigid translation, the
+    angular velocity of a rigid rotation, the contact force of an unloaded rod). Frames
+    integrated with it make a rigid translation of a twisted / bent rod an exact discrete solution
+    (see ``tests/solvers/test_rods_consistency.py``); with the exponential map the two
+    kinematics disagree at O((|kappa| ds)^2), which shows as position drift of strongly twisted rods.
     """
     nn = kappa.shape[0]
     R[0] = R0
@@ -703,6 +723,11 @@ def integrate_frames(R0, kappa, ds, R, r0, r):
     for j in range(1, nn):
         for c in range(3):
             ka[c] = 0.5 * (kappa[j - 1, c] + kappa[j, c])
+        if cayley:
+            sc = cayley_angle_scale(ds * np.sqrt(ka[0] * ka[0] + ka[1] * ka[1] + ka[2] * ka[2]))
+            for c in range(3):
+                ka[c] *= sc
+        for c in range(3):
             th[c] = ds * ka[c]
         ch = arc_chord(ka, ds)
         for c in range(3):
@@ -722,10 +747,10 @@ def newton_step_batch(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, p
 
 
 @njit(cache=True, parallel=True)
-def integrate_frames_batch(R0, kappa, ds, R, r0, r):
+def integrate_frames_batch(R0, kappa, ds, R, r0, r, cayley=False):
     """:func:`integrate_frames` for a batch; R0 (F, 3, 3), kappa (F, N+1, 3), ds (F,), r0 (F, 3)."""
     for f in prange(R0.shape[0]):
-        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f])
+        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f], cayley)
 
 
 @njit(cache=True)
@@ -738,7 +763,7 @@ def newton_step_serial(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, 
 
 
 @njit(cache=True)
-def integrate_frames_serial(R0, kappa, ds, R, r0, r):
+def integrate_frames_serial(R0, kappa, ds, R, r0, r, cayley=False):
     """:func:`integrate_frames_batch` without threads."""
     for f in range(R0.shape[0]):
-        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f])
+        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f], cayley)
