@@ -361,7 +361,8 @@ class RodLoads:
         object.__setattr__(self, "gravity", g)
 
 
-_TIP_MODES = {"force": 0, "velocity": 1, "velocity-torque": 2, "guided-torque": 3}
+_TIP_MODES = {"force": 0, "velocity": 1, "velocity-torque": 2, "guided-torque": 3, "guided-position": 4,
+              "clamped-position": 5}
 
 
 @dataclass(frozen=True, eq=False)
@@ -372,8 +373,12 @@ class RodBoundary:
     moving support); tip : "force" (free tip or tip force / torque from RodLoads), "velocity"
     (tip velocity and angular velocity prescribed), "velocity-torque" (tip velocity prescribed,
     tip torque from RodLoads) or "guided-torque" (tip velocity and the transverse components of
-    the tip angular velocity prescribed, the axial component of the tip torque from RodLoads);
-    tip_velocity, tip_angular_velocity : (F, 3).
+    the tip angular velocity prescribed, the axial component of the tip torque from RodLoads) or
+    "guided-position" (as "guided-torque", but the tip POSITION at the end of the step is prescribed
+    instead of its velocity: the seed's geometric boundary condition, positions recomputed inside the
+    Newton loop, §3.4.7; no drift between the prescribed and the actual tip path) or
+    "clamped-position" (tip position and tip angular velocity prescribed);
+    tip_velocity, tip_angular_velocity : (F, 3); tip_position : (F, 3) m (for the "-position" modes).
     """
 
     root_velocity: np.ndarray | None = None
@@ -381,10 +386,13 @@ class RodBoundary:
     tip: str = "force"
     tip_velocity: np.ndarray | None = None
     tip_angular_velocity: np.ndarray | None = None
+    tip_position: np.ndarray | None = None
 
     def __post_init__(self):
         if self.tip not in _TIP_MODES:
             raise ParameterError(f"tip must be one of {sorted(_TIP_MODES)}, got {self.tip!r}")
+        if self.tip.endswith("-position") and self.tip_position is None:
+            raise ParameterError(f"tip={self.tip!r} needs tip_position (m, global)")
 
 
 CLAMPED_FREE = RodBoundary()
@@ -499,6 +507,7 @@ class ImplicitRodSolver:
         par[:, 17] = o.armijo
         par[:, 18] = tip_mode
         par[:, 19] = o.max_halvings
+        par[:, 20] = 1.0 if o.resolved_frame_map == "cayley" else 0.0
         return par
 
     def step(self, model: RodModel, state: RodState, dt: float, loads: RodLoads = RodLoads(),
@@ -530,8 +539,12 @@ class ImplicitRodSolver:
         bc[:, 3:6] = _fibre_vec(boundary.root_angular_velocity, F, "root_angular_velocity")
         bc[:, 6:9] = _fibre_vec(loads.tip_force, F, "tip_force")
         bc[:, 9:12] = _fibre_vec(loads.tip_torque, F, "tip_torque")
-        bc[:, 12:15] = _fibre_vec(boundary.tip_velocity, F, "tip_velocity")
+        if boundary.tip.endswith("-position"):
+            bc[:, 12:15] = _fibre_vec(boundary.tip_position, F, "tip_position")
+        else:
+            bc[:, 12:15] = _fibre_vec(boundary.tip_velocity, F, "tip_velocity")
         bc[:, 15:18] = _fibre_vec(boundary.tip_angular_velocity, F, "tip_angular_velocity")
+        bc[:, 18:21] = state.positions[:, 0]
         x = np.array(state.x)  # warm start
         xt = np.empty_like(x)
         xs = np.empty_like(x)
