@@ -228,6 +228,7 @@ def buckling(n_segments: int = 40, dt: float = 4e-3, duration: float = 1.0, leng
             "max_step_rotation": 0.1}
     if loop_writhe is not None:
         info["stop"] = lambda st: abs(writhe(st.positions[0], axis=(1.0, 0.0, 0.0))) >= loop_writhe
+        info["stop_reason"] = f"the loop has formed (writhe >= {loop_writhe:g}); no rod self-contact beyond"
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
     # an inextensible straight rod with both ends guided carries an indeterminate axial force
     # (singular Jacobian): start from a slightly bent (imperfect) rod (kap above)
