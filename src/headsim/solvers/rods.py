@@ -26,6 +26,13 @@ Implementation notes
   seed lags ``d_s x_{j-1}`` (it then converges linearly).
 * Loads are given in the global frame, held constant over a step and rotated into the local frames
   of the iterate (``R = R_old exp(dt (omega + omega_old) / 2)``); their rotation enters the Jacobian.
+* Geometric tip BC (tip modes "guided-position" / "clamped-position"): the tip position at the end
+  of the step is a residual row computed inside Newton by integrating the iterate's curvature from
+  the iterate's root frame and root point (the seed's "recompute positions inside the loop" for
+  point-to-point BCs, §3.4.7). Its three rows depend on every node's curvature; they are added to the
+  banded factorisation by the Sherman-Morrison-Woodbury identity (three extra banded solves per
+  factorisation), so the tip follows a prescribed path exactly instead of drifting by the O(ds^2)
+  mismatch between velocity and curvature kinematics that a velocity BC accumulates.
 * Start-up (§3.4.7): the first step of a fresh state is a backward-Euler step (alpha_t = beta_t = 0,
   gamma_t = 1), which needs neither d_t x nor d_s x of the start and returns a state in which the PDE
   holds at the nodes, so that d_t x = M^-1 (P d_s x + g) as in the seed's start-up rule (with a
