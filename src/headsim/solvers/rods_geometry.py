@@ -41,8 +41,9 @@ def extend_along_axis(points, axis, length: float) -> np.ndarray:
 
 
 def writhe(points, axis=None, extension: float | None = None) -> float:
-    """Writhe of a polyline (n, 3) (Klenin & Langowski 2000). If ``axis`` is given the curve is first
-    extended at both ends by straight segments of ``extension`` (default 100x its span) along it."""
+    """Writhe of a polyline (n, 3) (Klenin & Langowski 2000); a closed curve repeats its first point
+    at the end. If ``axis`` is given the curve is first extended at both ends by straight segments of
+    ``extension`` (default 100x its span) along it."""
     p = _check_polyline(points)
     if axis is not None:
         span = float(np.linalg.norm(p.max(0) - p.min(0)))
@@ -50,6 +51,10 @@ def writhe(points, axis=None, extension: float | None = None) -> float:
     a, b = p[:-1], p[1:]
     m = a.shape[0]
     i, j = np.triu_indices(m, k=2)  # neighbours share an end point and contribute nothing
+    span = float(np.linalg.norm(p.max(0) - p.min(0)))
+    if m > 2 and np.linalg.norm(p[0] - p[-1]) <= 1e-12 * span:  # closed: first and last segment are neighbours
+        keep = ~((i == 0) & (j == m - 1))
+        i, j = i[keep], j[keep]
     p1, p2, p3, p4 = a[i], b[i], a[j], b[j]
     r13, r14, r23, r24 = p3 - p1, p4 - p1, p3 - p2, p4 - p2
 
