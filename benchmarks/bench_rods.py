@@ -48,14 +48,14 @@ def hair(N, n_fibres=1):
 def headsim_gravity(N):
     _, y_ref, _ = cantilever_self_weight_elastica(RHOA * 9.81, L, EI)
     m = hair(N)
-    st = initial_state(m)
+    st = initial_state(m, frame_map="cayley")
     solver = ImplicitRodSolver(RodSolverOptions(coefficients=GeneralizedAlpha.backward_euler()))
     for dt in [0.01] * 20 + [0.1] * 20 + [1.0] * 10:
         st, _ = solver.step(m, st, dt, RodLoads(gravity=GRAV))
     static_err = abs(-st.tip_position[0, 2] - y_ref) / y_ref
     # dynamics: released under gravity, rho_inf = 0.5, dt = 1 ms, timed
     solver = ImplicitRodSolver(RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5)))
-    st = initial_state(m)
+    st = initial_state(m, frame_map="cayley")
     st, _ = solver.step(m, st, 1e-3, RodLoads(gravity=GRAV))  # compile / warm
     n = 200
     its = []
@@ -76,7 +76,7 @@ def clamped_clamped_tip_bcs(N, n=100):
     m = hair(N).with_natural_curvature(np.tile([1.0 / L, 0.0, 0.0], (N + 1, 1)))  # an arc (a straight
     # inextensible rod between two clamps would carry an indeterminate axial force)
     solver = ImplicitRodSolver(RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5)))
-    st0 = initial_state(m)
+    st0 = initial_state(m, frame_map="cayley")
     tip = st0.tip_position[0].copy()
     bcs = {"velocity": RodBoundary(tip="velocity"),
            "position": RodBoundary(tip="clamped-position", tip_position=tip)}
@@ -103,7 +103,7 @@ def headsim_vibration(N):
     x = np.zeros((1, N + 1, 12))
     x[0, :, 1] = 1e-3 * phi / phi[-1]
     x[0, :, 3] = -1e-3 * dphi / phi[-1]
-    st = initial_state(m, x=x)
+    st = initial_state(m, x=x, frame_map="cayley")
     solver = ImplicitRodSolver(RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(1.0)))
     dt = 1e-3
     t, z = [0.0], [0.0]
@@ -150,7 +150,7 @@ def pyelastica_rod(N, dt, n_steps, gravity=True):
 
 def batched(n_fibres, N, n_steps=3):
     m = hair(N, n_fibres)
-    st = initial_state(m)
+    st = initial_state(m, frame_map="cayley")
     solver = ImplicitRodSolver(RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5)))
     st, _ = solver.step(m, st, 1e-3, RodLoads(gravity=GRAV))  # compile / warm
     t0 = time.perf_counter()

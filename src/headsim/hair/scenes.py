@@ -96,7 +96,7 @@ def cantilever(n_segments: int = 50, dt: float = 1e-3, duration: float = 0.5) ->
     """A 5 cm hair (70 um) clamped horizontally and released under gravity; rho_inf = 0.5 in time."""
     m = _hair(0.05, n_segments, root_direction=(1, 0, 0))
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
-    return Scene("cantilever", m, initial_state(m), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+    return Scene("cantilever", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
                  "5 cm keratin fibre, clamped horizontally, released under gravity")
 
 
@@ -107,7 +107,7 @@ def precurved(n_segments: int = 50, dt: float = 2e-3, duration: float = 0.5, rho
     k0 = sinusoidal_curvature(n_segments, L, 60.0, 0.025, component=0)
     m = _hair(L, n_segments, natural_curvature=k0, root_direction=(1, 0, 0))
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(rho_inf, 1.0))
-    return Scene("precurved", m, initial_state(m), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+    return Scene("precurved", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
                  "sinusoidally pre-curved fibre released under gravity (seed fig. 3.15)")
 
 
@@ -131,7 +131,7 @@ def helix(n_segments: int = 100, dt: float = 2e-3, duration: float = 1.0, load: 
         return RodLoads(tip_force=ramp * F0 * axis), RodBoundary()
 
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
-    return Scene("helix", m, initial_state(m), opts, dt, duration, schedule,
+    return Scene("helix", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, schedule,
                  f"30 cm helical fibre under an axial tip {load} (seed fig. 3.16)")
 
 
@@ -145,7 +145,7 @@ def spiral(n_segments: int = 80, dt: float = 2.5e-4, duration: float = 0.2, turn
     L = turns * 2 * np.pi * np.sqrt(coil_radius**2 + (pitch / (2 * np.pi)) ** 2)
     m = _hair(L, n_segments, natural_curvature=kap, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
     axis = helix_axis(m.root_frame[0], kap)
-    st = initial_state(m)
+    st = initial_state(m, frame_map="cayley")  # the solver below uses the box scheme in s
     # apply the force on the spring axis: add the torque that moves it from the wire tip to the axis
     centre = st.positions[0, 0] - coil_radius * m.root_frame[0][:, 1]  # principal normal is -d2
     tip = st.positions[0, -1]
@@ -174,7 +174,7 @@ def loop(n_segments: int = 60, dt: float = 0.05, duration: float = 30.0, length:
         return RodLoads(tip_torque=ramp * T0 * d1), RodBoundary()
 
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
-    return Scene("loop", m, initial_state(m), opts, dt, duration, schedule,
+    return Scene("loop", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, schedule,
                  "straight rod, tip torque 2 pi EI / L: forms a loop (seed fig. 3.17)")
 
 
@@ -204,7 +204,7 @@ def buckling(n_segments: int = 40, dt: float = 4e-3, duration: float = 1.0, leng
 
     kap = np.zeros((m.n_nodes, 3))
     kap[:, 1] = 1.0 / length * np.sin(2 * np.pi * m.arc_length[0] / length)
-    start = initial_state(m, kappa=kap)
+    start = initial_state(m, kappa=kap, frame_map="cayley")  # box scheme in s (options below)
     tip_start = start.positions[0, -1].copy()
     x_start = float(tip_start[0])
 
@@ -248,7 +248,9 @@ def strand_stretch(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
     L = 0.25
     k0 = sinusoidal_curvature(n_segments, L, 170.0, 0.05, component=0, phase=np.pi / 2)
     m = _hair(L, n_segments, natural_curvature=k0, root_direction=(0, 0, -1), root_normal=(1, 0, 0))
-    st = initial_state(m)
+    coefficients = coefficients or GeneralizedAlpha(0.3, 0.0, 0.7, 0.5, 0.5, 0.5)
+    opts = RodSolverOptions(coefficients=coefficients)
+    st = initial_state(m, frame_map=opts.resolved_frame_map)
     d0 = float(np.linalg.norm(st.positions[0, -1] - st.positions[0, 0]))
     ramp = 0.2 * pull_time  # smooth start: an inextensible rod cannot take a velocity jump
     speed = stretch * d0 / (pull_time - 0.5 * ramp)
@@ -260,8 +262,6 @@ def strand_stretch(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
             return RodLoads(gravity=g), RodBoundary(tip="velocity", tip_velocity=np.array([0.0, 0.0, -v]))
         return RodLoads(gravity=g), RodBoundary()
 
-    coefficients = coefficients or GeneralizedAlpha(0.3, 0.0, 0.7, 0.5, 0.5, 0.5)
-    opts = RodSolverOptions(coefficients=coefficients)
     strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
     return Scene("strand-stretch", m, st, opts, dt, duration, schedule,
                  f"curly 25 cm strand stretched by {stretch:.0%} and released (seed fig. 3.21)", strand)
@@ -294,7 +294,7 @@ def moving_support(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
 
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
     strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
-    return Scene("moving-support", m, initial_state(m), opts, dt, duration, schedule,
+    return Scene("moving-support", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, schedule,
                  "strand under gravity on a support moving along a 45 degree arc of radius 30 cm (seed fig. 3.24)",
                  strand, info={"support_angle": angle, "arc_centre": center, "arc_radius": arc_radius})
 

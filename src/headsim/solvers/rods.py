@@ -321,13 +321,15 @@ class RodState:
 FRAME_MAPS = ("auto", "cayley", "exp")
 
 
-def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0, frame_map: str = "cayley") -> RodState:
+def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0, frame_map: str = "exp") -> RodState:
     """A rest state: v = omega = 0, kappa = kappa0 (or ``kappa`` (F, N+1, 3)), n = 0; or a full ``x``.
 
     Frames and positions follow from the root frame by integration in s with constant-curvature
-    arcs: ``frame_map="cayley"`` (default; the map the solver uses with its default box scheme in
-    s, see :attr:`RodSolverOptions.frame_map`) or ``"exp"`` (exponential map, eq. 3.162). Use the
-    map of the solver that will step the state, or the first step re-integrates the shape.
+    arcs: ``frame_map="exp"`` (default: exact arcs, eq. 3.162; e.g. an exact helix for constant
+    kappa) or ``"cayley"`` (the map the solver uses with its default box scheme in s, see
+    :attr:`RodSolverOptions.frame_map`; shapes differ by O((|kappa| ds)^2)). A state that a solver
+    will step should use that solver's map (:meth:`ImplicitRodSolver.initial_state`), otherwise its
+    first step re-integrates the shape with the solver's map.
     """
     if frame_map not in ("cayley", "exp"):
         raise ParameterError(f"frame_map must be 'cayley' or 'exp', got {frame_map!r}")
@@ -496,6 +498,10 @@ class ImplicitRodSolver:
 
     def __init__(self, options: RodSolverOptions = RodSolverOptions()):
         self.options = options
+
+    def initial_state(self, model: RodModel, kappa=None, x=None, time: float = 0.0) -> RodState:
+        """:func:`initial_state` with this solver's frame map (``options.resolved_frame_map``)."""
+        return initial_state(model, kappa=kappa, x=x, time=time, frame_map=self.options.resolved_frame_map)
 
     def _pack(self, model: RodModel, dt: float, startup: bool, tip_mode: int) -> np.ndarray:
         o = self.options

@@ -785,10 +785,11 @@ def newton_step(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
     R_t = np.empty_like(R)
     tip_mode = int(par[18])
     bordered = tip_mode == 4 or tip_mode == 5
-    W = np.zeros((3, n))
-    Z = np.zeros((3, n))  # rows: B^-1 e_(tip position row c)
+    nb = n if bordered else 1  # the dense rows exist only for the geometric tip BC
+    W = np.zeros((3, nb))
+    Z = np.zeros((3, nb))  # rows: B^-1 e_(tip position row c)
     Cinv = np.zeros((3, 3))
-    unit = np.empty(n)
+    unit = np.empty(nb)
     rt = n - 6
     evals = 0
     factors = 0
