@@ -68,7 +68,9 @@ def rod_cmd(
                 task = progress.add_task("frames", total=len(states))
                 files += render_frames(states, tmp / "rendered", preset=preset,
                                        progress=lambda i, n: progress.update(task, completed=i))
-    stopped = "" if traj.times[-1] >= sc.duration - 0.5 * sc.dt else f" (stopped at t = {traj.times[-1]:.4g} s: {sc.info.get('stop_reason', 'stop criterion met')})"
+    stopped = ""
+    if traj.times[-1] < sc.duration - 0.5 * sc.dt:
+        stopped = f" (stopped at t = {traj.times[-1]:.4g} s: {sc.info.get('stop_reason', 'stop criterion met')})"
     typer.echo(f"{sc.description}: {len(traj.iterations)} steps{stopped}, mean Newton iterations "
                f"{np.mean(traj.iterations):.2f}; wrote {len(files)} files to {out}")
 

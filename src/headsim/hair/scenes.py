@@ -96,7 +96,8 @@ def cantilever(n_segments: int = 50, dt: float = 1e-3, duration: float = 0.5) ->
     """A 5 cm hair (70 um) clamped horizontally and released under gravity; rho_inf = 0.5 in time."""
     m = _hair(0.05, n_segments, root_direction=(1, 0, 0))
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
-    return Scene("cantilever", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+    st = initial_state(m, frame_map=opts.resolved_frame_map)
+    return Scene("cantilever", m, st, opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
                  "5 cm keratin fibre, clamped horizontally, released under gravity")
 
 
@@ -107,7 +108,8 @@ def precurved(n_segments: int = 50, dt: float = 2e-3, duration: float = 0.5, rho
     k0 = sinusoidal_curvature(n_segments, L, 60.0, 0.025, component=0)
     m = _hair(L, n_segments, natural_curvature=k0, root_direction=(1, 0, 0))
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(rho_inf, 1.0))
-    return Scene("precurved", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+    st = initial_state(m, frame_map=opts.resolved_frame_map)
+    return Scene("precurved", m, st, opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
                  "sinusoidally pre-curved fibre released under gravity (seed fig. 3.15)")
 
 

@@ -447,7 +447,6 @@ class RodSolverOptions:
         if self.startup not in ("backward_euler", "seed"):
             raise ParameterError(f"startup must be 'backward_euler' or 'seed', got {self.startup!r}")
 
-
     @property
     def resolved_frame_map(self) -> str:
         """"cayley" or "exp": the frame map ``frame_map`` stands for with these coefficients."""
