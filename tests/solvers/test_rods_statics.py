@@ -79,3 +79,74 @@ def test_pai_integration_agrees_for_small_loads_and_shows_follower_effect_for_la
     tip_angle = lambda Rm: np.arctan2(-Rm[-1][2, 2], Rm[-1][0, 2])
     print("tip angle dead vs follower (deg):", np.degrees(tip_angle(dead.frames)), np.degrees(tip_angle(R_pai)))
     assert tip_angle(R_pai) > tip_angle(dead.frames) + np.radians(10)
+
+
+def _clamped_twisted_buckled_equilibrium(n_segments, dt=4e-3, t_hold=0.5):
+    """A rod clamped at both ends, its tip turned by 4 pi EI / GJ and moved 17 % towards the root
+    (as in the buckling scene, tip mode "clamped-position"), then held and relaxed to rest by
+    backward Euler: a spatial static equilibrium with end loads only."""
+    from headsim.hair.scenes import build_scene
+    from headsim.solvers.rods import GeneralizedAlpha, ImplicitRodSolver, RodBoundary, RodLoads, RodSolverOptions
+
+    sc = build_scene("buckling", n_segments=n_segments, dt=dt)
+    m = sc.model
+    L, ds = m.length[0], m.segment_length[0]
+    EI, GJ = m.stiffness[0, 0], m.stiffness[0, 2]
+    phi = 4 * np.pi * EI / GJ
+    kick = np.zeros((1, m.n_nodes, 3))
+    kick[0, m.n_nodes // 2, 2] = 1e-2 * EI / L**2 / ds
+    solver = ImplicitRodSolver(sc.options)
+    st = sc.state
+    while st.time < t_hold - 1e-9:
+        t, tm = st.time + dt, st.time + 0.5 * dt
+        spin = phi / 0.2 * (1 - np.cos(2 * np.pi * tm / 0.2)) if tm < 0.2 else 0.0
+        bo = RodBoundary(tip="clamped-position", tip_position=sc.info["tip_path"](t),
+                         tip_angular_velocity=np.array([spin, 0.0, 0.0]))
+        st, _ = solver.step(m, st, dt, RodLoads(distributed_force=kick if t <= 0.1 else None), bo)
+    relax = ImplicitRodSolver(RodSolverOptions(coefficients=GeneralizedAlpha.backward_euler()))
+    hold = RodBoundary(tip="clamped-position", tip_position=sc.info["tip_path"](t_hold))
+    for h in [0.01] * 30 + [0.1] * 30:
+        st, _ = relax.step(m, st, h, RodLoads(), hold)
+    return m, st
+
+
+def test_clamped_twisted_rod_matches_the_lagrange_top_solution():
+    """Kirchhoff's kinetic analogy (Sobottka §3.3.1.1): a circular rod loaded only at its ends is a
+    Lagrange top. Its first integrals (contact force n, twisting moment m3, m . e_n, H) are constant
+    along the rod, and with them z(s) = d3 . e_n is the Jacobi-elliptic closed form (eq. 3.96) and the
+    height along e_n the elliptic-integral form (eq. 3.118). Both converge at second order in ds."""
+    from headsim.solvers.rods_analytic import lagrange_top
+
+    errs = []
+    for n_seg in (40, 80):
+        m, st = _clamped_twisted_buckled_equilibrium(n_seg)
+        L = m.length[0]
+        EI, GJ = m.stiffness[0, 0], m.stiffness[0, 2]
+        b = GJ / EI
+        R, x = st.frames[0], st.x[0]
+        assert np.abs(x[:, 0:6]).max() < 1e-6  # at rest
+        n_glob = np.einsum("jab,jb->ja", R, x[:, 9:12]) / EI  # scaled: EI = 1
+        n_vec = n_glob.mean(0)
+        n = np.linalg.norm(n_vec)
+        e_n = n_vec / n
+        kap = x[:, 6:9]
+        m_loc = kap * np.array([1.0, 1.0, b])
+        m_n = np.einsum("jab,jb->ja", R, m_loc) @ e_n
+        z = R[:, :, 2] @ e_n
+        H = 0.5 * (m_loc * kap).sum(1) + n * z
+        spreads = (np.ptp(n_glob, axis=0).max() / n, np.ptp(m_loc[:, 2]) / abs(m_loc[:, 2]).mean(),
+                   np.ptp(m_n) / abs(m_n).mean(), np.ptp(H) / abs(H).mean())
+        dz0 = (R[0] @ np.array([kap[0, 1], -kap[0, 0], 0.0])) @ e_n
+        top = lagrange_top(n, m_loc[:, 2].mean(), m_n.mean(), H.mean(), b, z[0], dz0 >= 0)
+        s = m.arc_length[0]
+        ez = np.abs(top.z(s) - z).max()
+        eh = np.abs(top.height(s) - (st.positions[0] - st.positions[0, 0]) @ e_n).max() / L
+        print(f"N={n_seg}: n L^2 = {n * L**2:.2f}, m3 L = {m_loc[0, 2] * L:.2f}, k = {top.k:.3f}, z in "
+              f"[{z.min():.3f}, {z.max():.3f}]; spreads of n, m3, m.e_n, H: {np.round(spreads, 6)}; "
+              f"max |z - z_top| {ez:.2e}, max |height - top| / L {eh:.2e}")
+        assert z.max() - z.min() > 0.3 and abs(m_loc[0, 2]) * L > 1 and abs(m_n.mean()) * L > 1  # truly spatial
+        errs.append((ez, eh, max(spreads)))
+    (ez1, eh1, sp1), (ez2, eh2, sp2) = errs
+    print("orders z, height, integrals:", np.log2(ez1 / ez2), np.log2(eh1 / eh2), np.log2(sp1 / sp2))
+    assert ez2 < 0.02 and eh2 < 0.005
+    assert np.log2(ez1 / ez2) > 1.7 and np.log2(eh1 / eh2) > 1.7 and np.log2(sp1 / sp2) > 1.7

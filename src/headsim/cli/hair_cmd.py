@@ -68,8 +68,11 @@ def rod_cmd(
                 task = progress.add_task("frames", total=len(states))
                 files += render_frames(states, tmp / "rendered", preset=preset,
                                        progress=lambda i, n: progress.update(task, completed=i))
-    typer.echo(f"{sc.description}: {sc.n_steps} steps, mean Newton iterations {np.mean(traj.iterations):.2f}; "
-               f"wrote {len(files)} files to {out}")
+    stopped = ""
+    if traj.times[-1] < sc.duration - 0.5 * sc.dt:
+        stopped = f" (stopped at t = {traj.times[-1]:.4g} s: {sc.info.get('stop_reason', 'stop criterion met')})"
+    typer.echo(f"{sc.description}: {len(traj.iterations)} steps{stopped}, mean Newton iterations "
+               f"{np.mean(traj.iterations):.2f}; wrote {len(files)} files to {out}")
 
 from headsim.cli import hair_collide_cmd, hair_render_cmd  # noqa: E402
 

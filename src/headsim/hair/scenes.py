@@ -34,6 +34,7 @@ from headsim.solvers.rods import (
     initial_state,
     kinetic_energy,
 )
+from headsim.solvers.rods_geometry import writhe
 
 __all__ = ["Scene", "Trajectory", "SCENES", "build_scene", "run_scene"]
 
@@ -95,7 +96,8 @@ def cantilever(n_segments: int = 50, dt: float = 1e-3, duration: float = 0.5) ->
     """A 5 cm hair (70 um) clamped horizontally and released under gravity; rho_inf = 0.5 in time."""
     m = _hair(0.05, n_segments, root_direction=(1, 0, 0))
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
-    return Scene("cantilever", m, initial_state(m), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+    st = initial_state(m, frame_map=opts.resolved_frame_map)
+    return Scene("cantilever", m, st, opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
                  "5 cm keratin fibre, clamped horizontally, released under gravity")
 
 
@@ -106,7 +108,8 @@ def precurved(n_segments: int = 50, dt: float = 2e-3, duration: float = 0.5, rho
     k0 = sinusoidal_curvature(n_segments, L, 60.0, 0.025, component=0)
     m = _hair(L, n_segments, natural_curvature=k0, root_direction=(1, 0, 0))
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(rho_inf, 1.0))
-    return Scene("precurved", m, initial_state(m), opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
+    st = initial_state(m, frame_map=opts.resolved_frame_map)
+    return Scene("precurved", m, st, opts, dt, duration, _static(RodLoads(gravity=GRAVITY)),
                  "sinusoidally pre-curved fibre released under gravity (seed fig. 3.15)")
 
 
@@ -130,7 +133,7 @@ def helix(n_segments: int = 100, dt: float = 2e-3, duration: float = 1.0, load: 
         return RodLoads(tip_force=ramp * F0 * axis), RodBoundary()
 
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
-    return Scene("helix", m, initial_state(m), opts, dt, duration, schedule,
+    return Scene("helix", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, schedule,
                  f"30 cm helical fibre under an axial tip {load} (seed fig. 3.16)")
 
 
@@ -144,7 +147,7 @@ def spiral(n_segments: int = 80, dt: float = 2.5e-4, duration: float = 0.2, turn
     L = turns * 2 * np.pi * np.sqrt(coil_radius**2 + (pitch / (2 * np.pi)) ** 2)
     m = _hair(L, n_segments, natural_curvature=kap, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
     axis = helix_axis(m.root_frame[0], kap)
-    st = initial_state(m)
+    st = initial_state(m, frame_map="cayley")  # the solver below uses the box scheme in s
     # apply the force on the spring axis: add the torque that moves it from the wire tip to the axis
     centre = st.positions[0, 0] - coil_radius * m.root_frame[0][:, 1]  # principal normal is -d2
     tip = st.positions[0, -1]
@@ -173,16 +176,28 @@ def loop(n_segments: int = 60, dt: float = 0.05, duration: float = 30.0, length:
         return RodLoads(tip_torque=ramp * T0 * d1), RodBoundary()
 
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
-    return Scene("loop", m, initial_state(m), opts, dt, duration, schedule,
+    return Scene("loop", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, schedule,
                  "straight rod, tip torque 2 pi EI / L: forms a loop (seed fig. 3.17)")
 
 
 def buckling(n_segments: int = 40, dt: float = 4e-3, duration: float = 1.0, length: float = 0.10,
-             shortening: float = 0.3) -> Scene:
-    """Seed fig. 3.20: the tip moves towards the root along the rod axis at constant speed
-    (end-shortening ``shortening`` L over the run) while an axial torque (ramped to 4 pi EI / L over
-    the first 20 %) is applied; a small mid-span transverse force over the first 10 % triggers the
-    instability. The tip may rotate (its moment is prescribed)."""
+             shortening: float = 0.5, loop_writhe: float | None = 0.8) -> Scene:
+    """Seed fig. 3.20: the tip moves towards the root along the rod axis (end-shortening
+    ``shortening`` L over 75 % of the run, after a smooth start) while an axial torque (ramped to
+    4 pi EI / L over the first 20 %) is applied; a small mid-span transverse force over the first
+    10 % triggers the instability. Root clamped; the tip is guided: its position is prescribed (the
+    seed's geometric boundary condition, solved inside Newton: tip mode "guided-position"), its
+    tangent kept along the axis, its spin free under the prescribed axial moment.
+
+    The rod first buckles into a spatial (helical) shape whose writhe grows smoothly with the
+    shortening; at about 35 % the twisted rod snaps (the motion accelerates, seed: "the rod
+    collapses and snaps into a loop") and its writhe jumps towards 1: a loop. With ``loop_writhe``
+    set the run stops once the writhe (Klenin-Langowski, tails closed along the axis) reaches it,
+    i.e. when the loop has formed (N = 40: at 36.8 % end-shortening, N = 80: 35.3 %). Beyond that
+    the loop closes on itself: N = 40 measured, the strands cross 1.6 ms later at about 3 m/s, and
+    the snap goes on to 10-80 m/s (the released twist energy on a 70 um fibre's tiny inertia, with no
+    air drag). The model has no rod self-contact, so the rod would pass through itself (its link
+    number jumps by 2)."""
     m = _hair(length, n_segments, root_direction=(1, 0, 0), root_normal=(0, 0, 1))
     EI = m.stiffness[0, 0]
     torque = 4 * np.pi * EI / length  # ~1.4x the clamped-clamped Greenhill moment 8.99 EI / L
@@ -193,7 +208,7 @@ def buckling(n_segments: int = 40, dt: float = 4e-3, duration: float = 1.0, leng
 
     kap = np.zeros((m.n_nodes, 3))
     kap[:, 1] = 1.0 / length * np.sin(2 * np.pi * m.arc_length[0] / length)
-    start = initial_state(m, kappa=kap)
+    start = initial_state(m, kappa=kap, frame_map="cayley")  # box scheme in s (options below)
     tip_start = start.positions[0, -1].copy()
     x_start = float(tip_start[0])
 
@@ -210,19 +225,20 @@ def buckling(n_segments: int = 40, dt: float = 4e-3, duration: float = 1.0, leng
         ramp = min(t / (0.2 * duration), 1.0)
         loads = RodLoads(tip_torque=np.array([ramp * torque, 0.0, 0.0]),
                          distributed_force=kick if t <= 0.1 * duration else None)
-        # geometric BC as a velocity BC with drift feedback: the tip position (from the curvature)
-        # follows the prescribed end-shortening; the feedback removes the O(ds^2) drift between
-        # velocity and curvature kinematics of a strongly twisted rod
-        goal = np.array([target(t - dt), tip_start[1], tip_start[2]])
-        v = (goal - state.positions[0, -1]) / (5 * dt)
-        v[0] += (target(t) - target(t - dt)) / dt
-        return loads, RodBoundary(tip="guided-torque", tip_velocity=v)
+        goal = np.array([target(t), tip_start[1], tip_start[2]])
+        return loads, RodBoundary(tip="guided-position", tip_position=goal)
 
+    info = {"tip_path": lambda t: np.array([target(t), tip_start[1], tip_start[2]]), "torque": torque,
+            "max_step_rotation": 0.1}
+    if loop_writhe is not None:
+        info["stop"] = lambda st: abs(writhe(st.positions[0], axis=(1.0, 0.0, 0.0))) >= loop_writhe
+        info["stop_reason"] = f"the loop has formed (writhe >= {loop_writhe:g}); no rod self-contact beyond"
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.0, 1.0))
     # an inextensible straight rod with both ends guided carries an indeterminate axial force
     # (singular Jacobian): start from a slightly bent (imperfect) rod (kap above)
     return Scene("buckling", m, start, opts, dt, duration, schedule,
-                 "end-shortening plus axial torque: twist-to-writhe buckling into a loop (seed fig. 3.20)")
+                 "end-shortening plus axial torque: twist-to-writhe buckling into a loop (seed fig. 3.20)",
+                 info=info)
 
 
 def strand_stretch(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.0, n_interpolated: int = 180,
@@ -236,7 +252,9 @@ def strand_stretch(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
     L = 0.25
     k0 = sinusoidal_curvature(n_segments, L, 170.0, 0.05, component=0, phase=np.pi / 2)
     m = _hair(L, n_segments, natural_curvature=k0, root_direction=(0, 0, -1), root_normal=(1, 0, 0))
-    st = initial_state(m)
+    coefficients = coefficients or GeneralizedAlpha(0.3, 0.0, 0.7, 0.5, 0.5, 0.5)
+    opts = RodSolverOptions(coefficients=coefficients)
+    st = initial_state(m, frame_map=opts.resolved_frame_map)
     d0 = float(np.linalg.norm(st.positions[0, -1] - st.positions[0, 0]))
     ramp = 0.2 * pull_time  # smooth start: an inextensible rod cannot take a velocity jump
     speed = stretch * d0 / (pull_time - 0.5 * ramp)
@@ -248,8 +266,6 @@ def strand_stretch(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
             return RodLoads(gravity=g), RodBoundary(tip="velocity", tip_velocity=np.array([0.0, 0.0, -v]))
         return RodLoads(gravity=g), RodBoundary()
 
-    coefficients = coefficients or GeneralizedAlpha(0.3, 0.0, 0.7, 0.5, 0.5, 0.5)
-    opts = RodSolverOptions(coefficients=coefficients)
     strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
     return Scene("strand-stretch", m, st, opts, dt, duration, schedule,
                  f"curly 25 cm strand stretched by {stretch:.0%} and released (seed fig. 3.21)", strand)
@@ -282,7 +298,7 @@ def moving_support(n_segments: int = 100, dt: float = 2e-3, duration: float = 2.
 
     opts = RodSolverOptions(coefficients=GeneralizedAlpha.from_rho_inf(0.5, 1.0))
     strand = make_strand(n_interpolated, 1.5e-3, m.n_nodes, tip_radius=0.5e-3, winding=20.0)
-    return Scene("moving-support", m, initial_state(m), opts, dt, duration, schedule,
+    return Scene("moving-support", m, initial_state(m, frame_map=opts.resolved_frame_map), opts, dt, duration, schedule,
                  "strand under gravity on a support moving along a 45 degree arc of radius 30 cm (seed fig. 3.24)",
                  strand, info={"support_angle": angle, "arc_centre": center, "arc_radius": arc_radius})
 
@@ -307,24 +323,33 @@ def build_scene(name: str, **kw) -> Scene:
 
 
 def _advance(solver, scene, st, dt, halvings_left):
-    """One step of ``dt``; if Newton fails, two half steps (recursively, at most ``halvings_left`` times).
-    Returns (state, mean Newton iterations per (sub)step)."""
+    """One step of ``dt``; if Newton fails, or the step turns some cross-section by more than
+    ``scene.info["max_step_rotation"]`` rad (max |omega| dt; an accuracy limit for snap-throughs),
+    two half steps instead (recursively, at most ``halvings_left`` times). A (sub)step after which
+    ``scene.info["stop"](state)`` holds ends the step there.
+    Returns (state, mean Newton iterations per (sub)step, stopped)."""
     loads, boundary = scene.schedule(st.time + dt, st)
+    limit = scene.info.get("max_step_rotation")
+    stop = scene.info.get("stop")
     try:
         new, rep = solver.step(scene.model, st, dt, loads, boundary)
-        return new, float(rep.iterations.mean())
+        if limit is None or halvings_left <= 0 or np.abs(new.x[:, :, 3:6]).max() * dt <= limit:
+            return new, float(rep.iterations.mean()), stop is not None and bool(stop(new))
     except ConvergenceError:
         if halvings_left <= 0:
             raise
-        mid, a = _advance(solver, scene, st, 0.5 * dt, halvings_left - 1)
-        end, b = _advance(solver, scene, mid, 0.5 * dt, halvings_left - 1)
-        return end, 0.5 * (a + b)
+    mid, a, stopped = _advance(solver, scene, st, 0.5 * dt, halvings_left - 1)
+    if stopped:
+        return mid, a, True
+    end, b, stopped = _advance(solver, scene, mid, 0.5 * dt, halvings_left - 1)
+    return end, 0.5 * (a + b), stopped
 
 
 def run_scene(scene: Scene, record_every: int = 1, progress: Callable[[int, int], None] | None = None,
               interpolate: bool = True, max_halvings: int = 6) -> Trajectory:
     """Integrate a scene; record every ``record_every`` steps (and the last). A step whose Newton
-    solve fails is retried as two half steps (at most ``max_halvings`` levels), for fast snap-throughs."""
+    solve fails is retried as two half steps (at most ``max_halvings`` levels), for fast snap-throughs.
+    If ``scene.info["stop"](state)`` is true after a (sub)step, the run ends there (recorded)."""
     solver = ImplicitRodSolver(scene.options)
     st = scene.state
     n = scene.n_steps
@@ -338,18 +363,20 @@ def run_scene(scene: Scene, record_every: int = 1, progress: Callable[[int, int]
     _interp(st)
     s_t, s_tip, s_kin = [st.time], [st.tip_position], [kin[0]]
     for i in range(1, n + 1):
-        st, it = _advance(solver, scene, st, scene.dt, max_halvings)
+        st, it, done = _advance(solver, scene, st, scene.dt, max_halvings)
         its.append(it)
         s_t.append(st.time)
         s_tip.append(st.tip_position)
         s_kin.append(kinetic_energy(scene.model, st))
-        if i % record_every == 0 or i == n:
+        if i % record_every == 0 or i == n or done:
             times.append(st.time)
             pos.append(st.positions)
             curv.append(st.x[:, :, 6:9])
             kin.append(kinetic_energy(scene.model, st))
             _interp(st)
         if progress is not None:
-            progress(i, n)
+            progress(n if done else i, n)
+        if done:
+            break
     return Trajectory(np.array(times), np.array(pos), np.array(curv), np.array(kin), np.array(its), st,
                       np.array(interp) if interp else None, np.array(s_t), np.array(s_tip), np.array(s_kin))

@@ -26,12 +26,23 @@ Implementation notes
   seed lags ``d_s x_{j-1}`` (it then converges linearly).
 * Loads are given in the global frame, held constant over a step and rotated into the local frames
   of the iterate (``R = R_old exp(dt (omega + omega_old) / 2)``); their rotation enters the Jacobian.
+* Geometric tip BC (tip modes "guided-position" / "clamped-position"): the tip position at the end
+  of the step is a residual row computed inside Newton by integrating the iterate's curvature from
+  the iterate's root frame and root point (the seed's "recompute positions inside the loop" for
+  point-to-point BCs, §3.4.7). Its three rows depend on every node's curvature; they are added to the
+  banded factorisation by the Sherman-Morrison-Woodbury identity (three extra banded solves per
+  factorisation), so the tip follows a prescribed path exactly instead of drifting by the O(ds^2)
+  mismatch between velocity and curvature kinematics that a velocity BC accumulates.
 * Start-up (§3.4.7): the first step of a fresh state is a backward-Euler step (alpha_t = beta_t = 0,
   gamma_t = 1), which needs neither d_t x nor d_s x of the start and returns a state in which the PDE
   holds at the nodes, so that d_t x = M^-1 (P d_s x + g) as in the seed's start-up rule (with a
   consistent contact force n, which a non-equilibrium start does not know).
 * After convergence the frames are re-integrated in s from the time-updated root frame and the
-  centreline follows by exact constant-curvature arcs; the root point moves by eq. 3.165.
+  centreline follows by constant-curvature arcs; the root point moves by eq. 3.165. With the box
+  scheme in s the arcs turn by the Cayley angle 2 atan(|kappa| ds / 2) instead of |kappa| ds
+  (``RodSolverOptions.frame_map``): that is how the discrete equations transport vectors along
+  the rod, so velocity and position kinematics agree (no drift of the tip of a twisted rod away
+  from its prescribed velocity).
 
 References: Sobottka 2008 (seed 002) ch. 3; Chung & Hulbert 1993; Jansen, Whiting & Hulbert 2000;
 Gobat & Grosenbaugh 2001; Simo & Vu-Quoc 1988.
@@ -60,6 +71,7 @@ __all__ = [
     "straight_frame",
     "kinetic_energy",
     "amplification_eigenvalues",
+    "FRAME_MAPS",
 ]
 
 
@@ -306,11 +318,21 @@ class RodState:
         return self.positions[:, -1, :]
 
 
-def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0) -> RodState:
+FRAME_MAPS = ("auto", "cayley", "exp")
+
+
+def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0, frame_map: str = "exp") -> RodState:
     """A rest state: v = omega = 0, kappa = kappa0 (or ``kappa`` (F, N+1, 3)), n = 0; or a full ``x``.
 
-    Frames and positions follow from the root frame by exponential-map integration in s.
+    Frames and positions follow from the root frame by integration in s with constant-curvature
+    arcs: ``frame_map="exp"`` (default: exact arcs, eq. 3.162; e.g. an exact helix for constant
+    kappa) or ``"cayley"`` (the map the solver uses with its default box scheme in s, see
+    :attr:`RodSolverOptions.frame_map`; shapes differ by O((|kappa| ds)^2)). A state that a solver
+    will step should use that solver's map (:meth:`ImplicitRodSolver.initial_state`), otherwise its
+    first step re-integrates the shape with the solver's map.
     """
+    if frame_map not in ("cayley", "exp"):
+        raise ParameterError(f"frame_map must be 'cayley' or 'exp', got {frame_map!r}")
     F, nn = model.n_fibres, model.n_nodes
     if x is None:
         x = np.zeros((F, nn, 12))
@@ -323,7 +345,7 @@ def initial_state(model: RodModel, kappa=None, x=None, time: float = 0.0) -> Rod
     pos = np.empty((F, nn, 3))
     _k.integrate_frames_serial(np.ascontiguousarray(model.root_frame), np.ascontiguousarray(x[:, :, 6:9]),
                               np.ascontiguousarray(model.segment_length), frames,
-                              np.ascontiguousarray(model.root_position), pos)
+                              np.ascontiguousarray(model.root_position), pos, frame_map == "cayley")
     z = np.zeros((F, nn, 12))
     return RodState(x, z, z, z, frames, pos, time, False)
 
@@ -348,7 +370,8 @@ class RodLoads:
         object.__setattr__(self, "gravity", g)
 
 
-_TIP_MODES = {"force": 0, "velocity": 1, "velocity-torque": 2, "guided-torque": 3}
+_TIP_MODES = {"force": 0, "velocity": 1, "velocity-torque": 2, "guided-torque": 3, "guided-position": 4,
+              "clamped-position": 5}
 
 
 @dataclass(frozen=True, eq=False)
@@ -359,8 +382,12 @@ class RodBoundary:
     moving support); tip : "force" (free tip or tip force / torque from RodLoads), "velocity"
     (tip velocity and angular velocity prescribed), "velocity-torque" (tip velocity prescribed,
     tip torque from RodLoads) or "guided-torque" (tip velocity and the transverse components of
-    the tip angular velocity prescribed, the axial component of the tip torque from RodLoads);
-    tip_velocity, tip_angular_velocity : (F, 3).
+    the tip angular velocity prescribed, the axial component of the tip torque from RodLoads) or
+    "guided-position" (as "guided-torque", but the tip POSITION at the end of the step is prescribed
+    instead of its velocity: the seed's geometric boundary condition, positions recomputed inside the
+    Newton loop, §3.4.7; no drift between the prescribed and the actual tip path) or
+    "clamped-position" (tip position and tip angular velocity prescribed);
+    tip_velocity, tip_angular_velocity : (F, 3); tip_position : (F, 3) m (for the "-position" modes).
     """
 
     root_velocity: np.ndarray | None = None
@@ -368,10 +395,13 @@ class RodBoundary:
     tip: str = "force"
     tip_velocity: np.ndarray | None = None
     tip_angular_velocity: np.ndarray | None = None
+    tip_position: np.ndarray | None = None
 
     def __post_init__(self):
         if self.tip not in _TIP_MODES:
             raise ParameterError(f"tip must be one of {sorted(_TIP_MODES)}, got {self.tip!r}")
+        if self.tip.endswith("-position") and self.tip_position is None:
+            raise ParameterError(f"tip={self.tip!r} needs tip_position (m, global)")
 
 
 CLAMPED_FREE = RodBoundary()
@@ -388,6 +418,12 @@ class RodSolverOptions:
     tolerance : max-norm of the residual, each component scaled by its characteristic size
     max_iterations : Newton iterations per step; armijo : iota of eq. 3.172; max_halvings : of mu
     raise_on_failure : raise ConvergenceError when a fibre does not converge
+    frame_map : how frames and centreline are integrated in s after a step: "cayley" (turning angle
+      2 atan(|kappa| ds / 2) per segment: the map by which the box scheme in s transports vectors,
+      so a rigid translation of a twisted rod is an exact discrete solution and the tip velocity
+      agrees with the motion of the tip position), "exp" (exponential map, eq. 3.162; the two
+      kinematics then differ at O((|kappa| ds)^2), i.e. position drift of strongly twisted rods) or
+      "auto" (default: "cayley" for the box scheme in s, alpha_s = beta_s = gamma_s = 1/2, else "exp")
     startup : first step of a fresh state: "backward_euler" (default; needs no derivatives and finds
       a consistent contact force n) or "seed" (Sobottka Algorithm 1, i = 0: d_s x from the nodal
       values (central differences), d_t x = M^-1 (P d_s x + g) for v, omega, kappa and d_t n = 0,
@@ -401,12 +437,24 @@ class RodSolverOptions:
     max_halvings: int = 12
     raise_on_failure: bool = True
     startup: str = "backward_euler"
+    frame_map: str = "auto"
 
     def __post_init__(self):
+        if self.frame_map not in FRAME_MAPS:
+            raise ParameterError(f"frame_map must be one of {FRAME_MAPS}, got {self.frame_map!r}")
         if not (self.tolerance > 0 and self.max_iterations >= 1 and 0 < self.armijo < 0.5):
             raise ParameterError("tolerance > 0, max_iterations >= 1 and 0 < armijo < 0.5 required")
         if self.startup not in ("backward_euler", "seed"):
             raise ParameterError(f"startup must be 'backward_euler' or 'seed', got {self.startup!r}")
+
+    @property
+    def resolved_frame_map(self) -> str:
+        """"cayley" or "exp": the frame map ``frame_map`` stands for with these coefficients."""
+        if self.frame_map != "auto":
+            return self.frame_map
+        c = self.coefficients
+        box = all(abs(a - 0.5) < 1e-15 for a in (c.alpha_s, c.beta_s, c.gamma_s))
+        return "cayley" if box else "exp"
 
 
 @dataclass(frozen=True)
@@ -450,6 +498,10 @@ class ImplicitRodSolver:
     def __init__(self, options: RodSolverOptions = RodSolverOptions()):
         self.options = options
 
+    def initial_state(self, model: RodModel, kappa=None, x=None, time: float = 0.0) -> RodState:
+        """:func:`initial_state` with this solver's frame map (``options.resolved_frame_map``)."""
+        return initial_state(model, kappa=kappa, x=x, time=time, frame_map=self.options.resolved_frame_map)
+
     def _pack(self, model: RodModel, dt: float, startup: bool, tip_mode: int) -> np.ndarray:
         o = self.options
         c = o.coefficients.as_array()
@@ -467,6 +519,7 @@ class ImplicitRodSolver:
         par[:, 17] = o.armijo
         par[:, 18] = tip_mode
         par[:, 19] = o.max_halvings
+        par[:, 20] = 1.0 if o.resolved_frame_map == "cayley" else 0.0
         return par
 
     def step(self, model: RodModel, state: RodState, dt: float, loads: RodLoads = RodLoads(),
@@ -498,8 +551,12 @@ class ImplicitRodSolver:
         bc[:, 3:6] = _fibre_vec(boundary.root_angular_velocity, F, "root_angular_velocity")
         bc[:, 6:9] = _fibre_vec(loads.tip_force, F, "tip_force")
         bc[:, 9:12] = _fibre_vec(loads.tip_torque, F, "tip_torque")
-        bc[:, 12:15] = _fibre_vec(boundary.tip_velocity, F, "tip_velocity")
+        if boundary.tip.endswith("-position"):
+            bc[:, 12:15] = _fibre_vec(boundary.tip_position, F, "tip_position")
+        else:
+            bc[:, 12:15] = _fibre_vec(boundary.tip_velocity, F, "tip_velocity")
         bc[:, 15:18] = _fibre_vec(boundary.tip_angular_velocity, F, "tip_angular_velocity")
+        bc[:, 18:21] = state.positions[:, 0]
         x = np.array(state.x)  # warm start
         xt = np.empty_like(x)
         xs = np.empty_like(x)
@@ -528,7 +585,8 @@ class ImplicitRodSolver:
         r0 = state.positions[:, 0] + 0.5 * dt * (v_new + v_old)
         integ = _k.integrate_frames_batch if F >= PARALLEL_MIN_FIBRES else _k.integrate_frames_serial
         integ(np.ascontiguousarray(R[:, 0]), np.ascontiguousarray(x[:, :, 6:9]),
-                                  np.ascontiguousarray(model.segment_length), frames, r0, pos)
+                                  np.ascontiguousarray(model.segment_length), frames, r0, pos,
+                                  self.options.resolved_frame_map == "cayley")
         return RodState(x, xt, xs, g, frames, pos, state.time + dt, True), report
 
 

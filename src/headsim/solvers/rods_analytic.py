@@ -6,7 +6,9 @@ All SI. These are the oracles of the rod tests and benchmark; they do not use th
 from __future__ import annotations
 
 import numpy as np
-from scipy import integrate, optimize
+from dataclasses import dataclass
+
+from scipy import integrate, optimize, special
 
 from headsim.errors import ParameterError
 
@@ -18,6 +20,8 @@ __all__ = [
     "helical_spring_fundamental_frequency",
     "cantilever_tip_load_linear",
     "cantilever_self_weight_linear",
+    "LagrangeTop",
+    "lagrange_top",
 ]
 
 
@@ -109,3 +113,74 @@ def helical_spring_fundamental_frequency(k: float, spring_mass: float) -> float:
     """Fundamental axial frequency (Hz) of a clamped-free spring with distributed mass and no end
     mass, treated as a uniform 1-D continuum: f = sqrt(k / m) / 4."""
     return 0.25 * np.sqrt(k / spring_mass)
+
+
+@dataclass(frozen=True)
+class LagrangeTop:
+    """Closed-form static Kirchhoff rod with a circular section and end loads only (the Lagrange
+    top of Kirchhoff's kinetic analogy; Sobottka 2008 §3.3.1.1, eqs. 3.77-3.118, with the digest's
+    corrections). Scaled units: EI = 1, so forces are F / EI (1/m^2), moments M / EI (1/m).
+
+    n : the constant contact force n e_z (the tip force), > 0; m3 : twisting moment b kappa3;
+    mz : e_z . m; H : the Hamiltonian 1/2 m.kappa + n d3.e_z (eq. 3.82); b = GJ / EI;
+    z1 <= z2 <= z3 : roots of the cubic (eqs. 3.91-3.94); k, lam : modulus and rate of eq. 3.96;
+    s0 : phase with z(0) = z0 (eqs. 3.98/3.99, eta^2 = (z0 - z1) / (z2 - z1)).
+    """
+
+    n: float
+    m3: float
+    mz: float
+    H: float
+    b: float
+    z1: float
+    z2: float
+    z3: float
+    k: float
+    lam: float
+    s0: float
+
+    def z(self, s):
+        """cos theta(s) = d3(s) . e_z (eq. 3.96): z1 + (z2 - z1) sn^2(lam (s + s0), k)."""
+        sn, _, _, _ = special.ellipj(self.lam * (np.asarray(s, float) + self.s0), self.k**2)
+        return self.z1 + (self.z2 - self.z1) * sn**2
+
+    def height(self, s):
+        """Z(s) - Z(0) = int_0^s z (eq. 3.118, reconstructed): z3 s - (z3 - z1) / lam [E(am u) - E(am u0)]
+        with u = lam (s + s0), using int sn^2 = (u - E(am u, k)) / k^2."""
+        s = np.asarray(s, float)
+        m = self.k**2
+
+        def Eam(u):
+            return special.ellipeinc(special.ellipj(u, m)[3], m)
+
+        u, u0 = self.lam * (s + self.s0), self.lam * self.s0
+        return self.z3 * s - (self.z3 - self.z1) / self.lam * (Eam(u) - Eam(u0))
+
+    def dphi(self, s):
+        """phi'(s) = (mz - m3 z) / (1 - z^2) (eq. 3.87): precession rate of the tangent about e_z."""
+        z = self.z(s)
+        return (self.mz - self.m3 * z) / (1.0 - z**2)
+
+
+def lagrange_top(n: float, m3: float, mz: float, H: float, b: float, z0: float, rising: bool) -> LagrangeTop:
+    """The Lagrange-top solution through z(0) = z0 with first integrals (n, m3, mz, H) (scaled, EI = 1);
+    ``rising``: z'(0) >= 0. Roots by the monic trigonometric Cardano formula (Appendix A.3, corrected)."""
+    if not n > 0:
+        raise ParameterError("the Lagrange-top solution needs n > 0 (force along +e_z)")
+    h = (H - m3**2 / (2 * b)) / n  # eq. 3.90
+    c = np.array([2 * n, -2 * n * h - m3**2, -2 * n + 2 * mz * m3, 2 * n * h - mz**2])  # eq. 3.93
+    a1, a2, a3 = c[1] / c[0], c[2] / c[0], c[3] / c[0]
+    Q = (a1**2 - 3 * a2) / 9
+    R = (2 * a1**3 - 9 * a1 * a2 + 27 * a3) / 54
+    if not (Q > 0 and R**2 <= Q**3 * (1 + 1e-12)):
+        raise ParameterError("the cubic of eq. 3.91 has complex roots for these integrals")
+    zeta = np.arccos(np.clip(R / np.sqrt(Q**3), -1.0, 1.0))
+    roots = np.sort(-2 * np.sqrt(Q) * np.cos((zeta + np.array([0.0, 2 * np.pi, -2 * np.pi])) / 3) - a1 / 3)
+    z1, z2, z3 = (float(r) for r in roots)
+    if not (z1 - 1e-9 <= z0 <= z2 + 1e-9):
+        raise ParameterError(f"z0 = {z0} lies outside [z1, z2] = [{z1}, {z2}]")
+    k = np.sqrt((z2 - z1) / (z3 - z1))
+    lam = np.sqrt(n * (z3 - z1) / 2)
+    eta = np.sqrt(np.clip((z0 - z1) / (z2 - z1), 0.0, 1.0))
+    s0 = special.ellipkinc(np.arcsin(eta), k**2) / lam
+    return LagrangeTop(n, m3, mz, H, b, z1, z2, z3, float(k), float(lam), float(s0 if rising else -s0))

@@ -16,10 +16,18 @@ Packed parameter vector ``par`` (float64):
   15 tolerance (scaled max-norm of the residual), 16 max_iterations, 17 armijo iota,
   18 tip_mode (0: force/torque tip, 1: prescribed tip velocity and angular velocity,
   2: prescribed tip velocity and tip torque, 3: prescribed tip velocity, transverse angular
-  velocity (omega1, omega2) and axial torque m3), 19 max_halvings
+  velocity (omega1, omega2) and axial torque m3, 4: as 3 but the tip POSITION prescribed instead of
+  its velocity, 5: tip position and tip angular velocity prescribed), 19 max_halvings, 20 frame map of the position integration (1: Cayley, 0: exp)
 Packed boundary vector ``bc`` (float64, global components, held constant over the step):
   0:3 root velocity, 3:6 root angular velocity, 6:9 tip force, 9:12 tip torque,
-  12:15 tip velocity, 15:18 tip angular velocity
+  12:15 tip velocity (tip_modes 4, 5: tip position at the end of the step, m), 15:18 tip angular
+  velocity, 18:21 root position at the start of the step (m; used by tip_modes 4, 5)
+
+Tip mode 4 is the seed's "geometric (point-to-point) boundary condition" (§3.4.7: positions are
+recomputed inside the Newton loop). The tip position depends on the curvature of every node, so its
+three Jacobian rows are dense: the banded matrix holds identity rows on v_N in their place and the
+dense rows W (3, 12 (N+1)) are added by the Sherman-Morrison-Woodbury identity (three extra banded
+solves per factorisation and a 3 x 3 system).
 """
 
 from __future__ import annotations
@@ -27,8 +35,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-NPAR = 20
-NBC = 18
+NPAR = 21
+NBC = 21
 
 
 @njit(cache=True, inline="always")
@@ -349,8 +357,123 @@ BAND_WIDTH = 2 * KL + KU + 1
 
 
 @njit(cache=True)
+def _segment_map(kappa_mean, ds, cayley, E, chord):
+    """Rotation E (3, 3) and chord (3,) (in the segment's start frame) of one segment with mean
+    curvature kappa_mean (3,), for the exp or the Cayley frame map (see :func:`integrate_frames`)."""
+    ka = np.empty(3)
+    sc = 1.0
+    if cayley:
+        sc = cayley_angle_scale(ds * np.sqrt(kappa_mean[0] ** 2 + kappa_mean[1] ** 2 + kappa_mean[2] ** 2))
+    th = np.empty(3)
+    for c in range(3):
+        ka[c] = sc * kappa_mean[c]
+        th[c] = ds * ka[c]
+    rodrigues_into(th, E)
+    ch = arc_chord(ka, ds)
+    for c in range(3):
+        chord[c] = ch[c]
+
+
+@njit(cache=True)
+def tip_position_rows(x, x_old, R, R_old, bc, par, want_jac, F, band, W, rt, ct):
+    """Rows rt..rt+2 of tip_modes 4 and 5: (r_N(x) - r_target) / ds, with r_N integrated in s from the root
+    point (eq. 3.165 with the iterate's root velocity) and the iterate's root frame along the
+    iterate's curvature. Jacobian: identity stand-in on v_N in ``band`` and the dense correction W
+    (d r_N / d kappa_j by central differences per segment, O(N); root terms analytic)."""
+    nn = x.shape[0]
+    N = nn - 1
+    ds = par[0]
+    dt = par[1]
+    cay = par[20] > 0.5
+    Rs = np.empty((nn, 3, 3))
+    rs = np.empty((nn, 3))
+    Es = np.empty((nn, 3, 3))
+    chs = np.empty((nn, 3))
+    ka = np.empty(3)
+    for c in range(3):
+        vn = 0.0
+        vo = 0.0
+        for b in range(3):
+            vn += R[0, c, b] * x[0, b]
+            vo += R_old[0, c, b] * x_old[0, b]
+        rs[0, c] = bc[18 + c] + 0.5 * dt * (vn + vo)
+    Rs[0] = R[0]
+    for k in range(1, nn):
+        for c in range(3):
+            ka[c] = 0.5 * (x[k - 1, 6 + c] + x[k, 6 + c])
+        _segment_map(ka, ds, cay, Es[k], chs[k])
+        for c in range(3):
+            rs[k, c] = rs[k - 1, c] + Rs[k - 1, c, 0] * chs[k, 0] + Rs[k - 1, c, 1] * chs[k, 1] + Rs[k - 1, c, 2] * chs[k, 2]
+        _matmul3(Rs[k - 1], Es[k], Rs[k])
+    for c in range(3):
+        F[rt + c] = (rs[N, c] - bc[12 + c]) / ds
+    if not want_jac:
+        return
+    W[:, :] = 0.0
+    for c in range(3):
+        r = rt + c
+        band[r, ct + c - r + KL] = 1.0
+        W[c, ct + c] -= 1.0
+    # root point and root frame: r0 = r0_old + dt/2 (R0 v0 + ...), R0 = R0_old exp(dt/2 (w0 + w0_old))
+    theta = np.empty(3)
+    for c in range(3):
+        theta[c] = 0.5 * dt * (x[0, 3 + c] + x_old[0, 3 + c])
+    Jr = np.empty((3, 3))
+    right_jacobian_into(theta, Jr)
+    q = np.empty(3)  # R0^T (r_N - r0) + dt/2 v0: everything that turns with the root frame
+    for c in range(3):
+        q[c] = 0.0
+        for b in range(3):
+            q[c] += R[0, b, c] * (rs[N, b] - rs[0, b])
+        q[c] += 0.5 * dt * x[0, c]
+    H = np.zeros((3, 3))
+    _add_hat_times(q, Jr, H, 0, 0)  # hat(q) J_r
+    for c in range(3):
+        for b in range(3):
+            W[c, b] += 0.5 * dt * R[0, c, b] / ds
+            acc = 0.0
+            for e in range(3):
+                acc += R[0, c, e] * H[e, b]
+            W[c, 3 + b] += -0.5 * dt * acc / ds
+    # segments: d r_N / d kappa_mean_k = R_{k-1} (d chord + dE E^T R_{k-1}^T (r_N - r_k))
+    E2 = np.empty((3, 3))
+    E3 = np.empty((3, 3))
+    c2 = np.empty(3)
+    c3 = np.empty(3)
+    w = np.empty(3)
+    u = np.empty(3)
+    dl = np.empty(3)
+    G = np.empty(3)
+    eps = 1e-6 / ds
+    for k in range(1, nn):
+        for c in range(3):
+            w[c] = 0.0
+            for b in range(3):
+                w[c] += Rs[k - 1, b, c] * (rs[N, b] - rs[k, b])
+        # E^T w
+        for c in range(3):
+            u[c] = Es[k, 0, c] * w[0] + Es[k, 1, c] * w[1] + Es[k, 2, c] * w[2]
+        for a in range(3):
+            for c in range(3):
+                ka[c] = 0.5 * (x[k - 1, 6 + c] + x[k, 6 + c])
+            ka[a] += eps
+            _segment_map(ka, ds, cay, E2, c2)
+            ka[a] -= 2.0 * eps
+            _segment_map(ka, ds, cay, E3, c3)
+            for c in range(3):
+                loc = (c2[c] - c3[c]) + (E2[c, 0] - E3[c, 0]) * u[0] + (E2[c, 1] - E3[c, 1]) * u[1] + (E2[c, 2] - E3[c, 2]) * u[2]
+                dl[c] = loc / (2.0 * eps)
+            for c in range(3):
+                G[c] = Rs[k - 1, c, 0] * dl[0] + Rs[k - 1, c, 1] * dl[1] + Rs[k - 1, c, 2] * dl[2]
+            # kappa_mean_k = (kappa_{k-1} + kappa_k) / 2
+            for c in range(3):
+                W[c, 12 * (k - 1) + 6 + a] += 0.5 * G[c] / ds
+                W[c, 12 * k + 6 + a] += 0.5 * G[c] / ds
+
+
+@njit(cache=True)
 def evaluate(x, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, scale, want_jac,
-             F, band, xt, xs, g, R):
+             F, band, xt, xs, g, R, W):
     """Residual (and banded Jacobian) of one implicit rod step (Sobottka eqs. 3.153-3.161).
 
     Inputs (N+1 nodes): x, x_old, xt_old, xs_old, g_old (N+1, 12); R_old (N+1, 3, 3) node frames
@@ -358,7 +481,8 @@ def evaluate(x, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
     per length N/m (gravity included); bc (NBC,); par (NPAR,); scale (12,) characteristic size of each
     state component (row scaling of the residual).
     Outputs: F (12 (N+1),) scaled residual; band (12 (N+1), BAND_WIDTH) Jacobian if want_jac;
-    xt, xs, g (N+1, 12) derivatives and g(x) at the iterate; R (N+1, 3, 3) frames at the iterate.
+    xt, xs, g (N+1, 12) derivatives and g(x) at the iterate; R (N+1, 3, 3) frames at the iterate;
+    W (3, 12 (N+1)) dense tip-position rows minus their banded stand-in (tip_mode 4 and want_jac only).
 
     Unknown ordering: node-major, 12 per node. Equation rows: 6 root velocity BCs, then 12 link rows
     per segment j = 1..N, then 6 tip BCs.
@@ -510,20 +634,23 @@ def evaluate(x, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
                     band[r2, ct + 3 + b - r2 + KL] = -Af[c, b] / scale[9 + c]
     else:
         # tip_mode 1: velocity and angular velocity prescribed; 2: velocity and torque prescribed
-        for c in range(3):
-            vloc = R[N, 0, c] * bc[12] + R[N, 1, c] * bc[13] + R[N, 2, c] * bc[14]
-            F[rt + c] = (x[N, c] - vloc) / scale[c]
-            if want_jac:
-                r = rt + c
-                band[r, ct + c - r + KL] = 1.0 / scale[c]
-        if tip_mode == 1:
+        if tip_mode == 4 or tip_mode == 5:
+            tip_position_rows(x, x_old, R, R_old, bc, par, want_jac, F, band, W, rt, ct)
+        else:
+            for c in range(3):
+                vloc = R[N, 0, c] * bc[12] + R[N, 1, c] * bc[13] + R[N, 2, c] * bc[14]
+                F[rt + c] = (x[N, c] - vloc) / scale[c]
+                if want_jac:
+                    r = rt + c
+                    band[r, ct + c - r + KL] = 1.0 / scale[c]
+        if tip_mode == 1 or tip_mode == 5:
             for c in range(3):
                 wloc = R[N, 0, c] * bc[15] + R[N, 1, c] * bc[16] + R[N, 2, c] * bc[17]
                 F[rt + 3 + c] = (x[N, 3 + c] - wloc) / scale[3 + c]
                 if want_jac:
                     r2 = rt + 3 + c
                     band[r2, ct + 3 + c - r2 + KL] = 1.0 / scale[3 + c]
-        elif tip_mode == 3:
+        elif tip_mode == 3 or tip_mode == 4:
             # guided tip: transverse rotation rates prescribed (omega1, omega2), axial torque m3 prescribed
             for c in range(3):
                 theta[c] = 0.5 * dt * (x[N, 3 + c] + x_old[N, 3 + c])
@@ -581,6 +708,53 @@ def _max_abs(F):
 
 
 @njit(cache=True)
+def _woodbury_setup(band, piv, W, rt, unit, Z, Cinv):
+    """For J = B + E W (B factorised, E = unit columns at rows rt..rt+2): Z = (B^-1 E)^T and
+    Cinv = (I + W B^-1 E)^-1. Returns False if the 3 x 3 capacitance matrix is singular."""
+    n = band.shape[0]
+    for c in range(3):
+        for i in range(n):
+            unit[i] = 0.0
+        unit[rt + c] = 1.0
+        banded_lu_solve(band, piv, KL, KU, unit, Z[c])
+    C = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            acc = 1.0 if a == b else 0.0
+            for i in range(n):
+                acc += W[a, i] * Z[b, i]
+            C[a, b] = acc
+    det = (C[0, 0] * (C[1, 1] * C[2, 2] - C[1, 2] * C[2, 1]) - C[0, 1] * (C[1, 0] * C[2, 2] - C[1, 2] * C[2, 0])
+           + C[0, 2] * (C[1, 0] * C[2, 1] - C[1, 1] * C[2, 0]))
+    if det == 0.0 or not np.isfinite(det):
+        return False
+    Cinv[0, 0] = (C[1, 1] * C[2, 2] - C[1, 2] * C[2, 1]) / det
+    Cinv[0, 1] = (C[0, 2] * C[2, 1] - C[0, 1] * C[2, 2]) / det
+    Cinv[0, 2] = (C[0, 1] * C[1, 2] - C[0, 2] * C[1, 1]) / det
+    Cinv[1, 0] = (C[1, 2] * C[2, 0] - C[1, 0] * C[2, 2]) / det
+    Cinv[1, 1] = (C[0, 0] * C[2, 2] - C[0, 2] * C[2, 0]) / det
+    Cinv[1, 2] = (C[0, 2] * C[1, 0] - C[0, 0] * C[1, 2]) / det
+    Cinv[2, 0] = (C[1, 0] * C[2, 1] - C[1, 1] * C[2, 0]) / det
+    Cinv[2, 1] = (C[0, 1] * C[2, 0] - C[0, 0] * C[2, 1]) / det
+    Cinv[2, 2] = (C[0, 0] * C[1, 1] - C[0, 1] * C[1, 0]) / det
+    return True
+
+
+@njit(cache=True)
+def _woodbury_correct(W, Z, Cinv, y):
+    """y <- y - Z^T Cinv W y: turns y = B^-1 b into (B + E W)^-1 b (Sherman-Morrison-Woodbury)."""
+    n = y.shape[0]
+    t = np.zeros(3)
+    for a in range(3):
+        for i in range(n):
+            t[a] += W[a, i] * y[i]
+    for c in range(3):
+        sc = Cinv[c, 0] * t[0] + Cinv[c, 1] * t[1] + Cinv[c, 2] * t[2]
+        for i in range(n):
+            y[i] -= sc * Z[c, i]
+
+
+@njit(cache=True)
 def newton_step(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, scale,
                 x, xt, xs, g, R, info):
     """One implicit step of one fibre: globalised Newton (Sobottka Algorithm 1, §3.4.7).
@@ -609,10 +783,18 @@ def newton_step(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
     xs_t = np.empty_like(xs)
     g_t = np.empty_like(g)
     R_t = np.empty_like(R)
+    tip_mode = int(par[18])
+    bordered = tip_mode == 4 or tip_mode == 5
+    nb = n if bordered else 1  # the dense rows exist only for the geometric tip BC
+    W = np.zeros((3, nb))
+    Z = np.zeros((3, nb))  # rows: B^-1 e_(tip position row c)
+    Cinv = np.zeros((3, 3))
+    unit = np.empty(nb)
+    rt = n - 6
     evals = 0
     factors = 0
     evaluate(x, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, scale, False,
-             F, band, xt, xs, g, R)
+             F, band, xt, xs, g, R, W)
     evals += 1
     res = _max_abs(F)
     it = 0
@@ -628,16 +810,21 @@ def newton_step(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
             break
         if not have_factor or res > 0.25 * res_prev:
             evaluate(x, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, scale, True,
-                     F, band, xt, xs, g, R)
+                     F, band, xt, xs, g, R, W)
             evals += 1
             if not banded_factor(band, KL, KU, piv):
                 status = 3
                 break
             factors += 1
             have_factor = True
+            if bordered and not _woodbury_setup(band, piv, W, rt, unit, Z, Cinv):
+                status = 3
+                break
         for i in range(n):
             negF[i] = -F[i]
         banded_lu_solve(band, piv, KL, KU, negF, delta)
+        if bordered:
+            _woodbury_correct(W, Z, Cinv, delta)
         phi0 = 0.0
         for i in range(n):
             phi0 += F[i] * F[i]
@@ -649,7 +836,7 @@ def newton_step(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
                 for c in range(12):
                     xtr[j, c] = x[j, c] + mu * delta[12 * j + c]
             evaluate(xtr, x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, scale, False,
-                     Ft, band, xt_t, xs_t, g_t, R_t)
+                     Ft, band, xt_t, xs_t, g_t, R_t, W)
             evals += 1
             phi = 0.0
             for i in range(n):
@@ -688,11 +875,31 @@ def newton_step(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, par, sc
 
 
 @njit(cache=True)
-def integrate_frames(R0, kappa, ds, R, r0, r):
+def cayley_angle_scale(theta_norm):
+    """2 atan(t / 2) / t: the rotation angle of the Cayley transform cay(hat(theta)) =
+    (I - hat(theta) / 2)^-1 (I + hat(theta) / 2) over |theta| = t (its axis is theta's)."""
+    if theta_norm < 1e-12:
+        return 1.0
+    return 2.0 * np.arctan(0.5 * theta_norm) / theta_norm
+
+
+@njit(cache=True)
+def integrate_frames(R0, kappa, ds, R, r0, r, cayley=False):
     """Frames and centreline by integration in s (eqs. 3.162-3.164, tangent integration §3.4.6).
 
     R0 (3, 3) root frame; kappa (N+1, 3) 1/m (segment curvature = mean of its two nodes); ds m;
     out R (N+1, 3, 3); r0 (3,) root position m; out r (N+1, 3) m. Segments are exact constant-curvature arcs.
+
+    cayley=False: R_j = R_{j-1} exp(ds hat(kappa_mean)) (Rodrigues, eq. 3.162).
+    cayley=True: R_j = R_{j-1} cay(ds hat(kappa_mean)), i.e. the arc's turning angle |kappa| ds is
+    replaced by 2 atan(|kappa| ds / 2). This is the map by which the box scheme in s
+    (alpha_s = beta_s = gamma_s = 1/2) transports vectors along the rod: for constant kappa its
+    link rows read (I + ds/2 hat(kappa)) y_j = (I - ds/2 hat(kappa)) y_{j-1} for the local
+    components y of a vector that is constant in space (the velocity of a rigid translation, the
+    angular velocity of a rigid rotation, the contact force of an unloaded rod). Frames
+    integrated with it make a rigid translation of a twisted / bent rod an exact discrete solution
+    (see ``tests/solvers/test_rods_consistency.py``); with the exponential map the two
+    kinematics disagree at O((|kappa| ds)^2), which shows as position drift of strongly twisted rods.
     """
     nn = kappa.shape[0]
     R[0] = R0
@@ -703,6 +910,11 @@ def integrate_frames(R0, kappa, ds, R, r0, r):
     for j in range(1, nn):
         for c in range(3):
             ka[c] = 0.5 * (kappa[j - 1, c] + kappa[j, c])
+        if cayley:
+            sc = cayley_angle_scale(ds * np.sqrt(ka[0] * ka[0] + ka[1] * ka[1] + ka[2] * ka[2]))
+            for c in range(3):
+                ka[c] *= sc
+        for c in range(3):
             th[c] = ds * ka[c]
         ch = arc_chord(ka, ds)
         for c in range(3):
@@ -722,10 +934,10 @@ def newton_step_batch(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, p
 
 
 @njit(cache=True, parallel=True)
-def integrate_frames_batch(R0, kappa, ds, R, r0, r):
+def integrate_frames_batch(R0, kappa, ds, R, r0, r, cayley=False):
     """:func:`integrate_frames` for a batch; R0 (F, 3, 3), kappa (F, N+1, 3), ds (F,), r0 (F, 3)."""
     for f in prange(R0.shape[0]):
-        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f])
+        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f], cayley)
 
 
 @njit(cache=True)
@@ -738,7 +950,7 @@ def newton_step_serial(x_old, xt_old, xs_old, g_old, R_old, k0, dk0, fdist, bc, 
 
 
 @njit(cache=True)
-def integrate_frames_serial(R0, kappa, ds, R, r0, r):
+def integrate_frames_serial(R0, kappa, ds, R, r0, r, cayley=False):
     """:func:`integrate_frames_batch` without threads."""
     for f in range(R0.shape[0]):
-        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f])
+        integrate_frames(R0[f], kappa[f], ds[f], R[f], r0[f], r[f], cayley)
