@@ -88,3 +88,28 @@ def test_crossing_axes_get_a_perpendicular_normal():
     c = capsule_contacts(f, [[0, 1]], [[0.5, 0.5]])
     np.testing.assert_allclose(np.abs(c.normal[0]), [0, 0, 1])
     assert c.depth[0] == pytest.approx(0.2)
+
+
+@pytest.fixture(scope="module")
+def head_field():
+    import trimesh
+
+    from headsim.collide.distance_field import GridDistanceField
+    from headsim.data import head_path
+
+    m = trimesh.load(head_path(), process=False)
+    return GridDistanceField.from_mesh(np.asarray(m.vertices), np.asarray(m.faces), 0.003, band=0.011)
+
+
+def test_head_scene_fibres_are_inextensible_and_outside_the_head(head_field):
+    from headsim.collide.fibre_scenes import head_field_band, head_scene
+
+    f = head_scene(300, 12, length=0.06, layer_thickness=0.005, field=head_field, seed=2)
+    p, q = f.segment_endpoints()
+    np.testing.assert_allclose(np.linalg.norm(q - p, axis=1), 0.06 / 12, rtol=1e-12)
+    phi = head_field.distance(f.nodes).reshape(300, 13)
+    assert (phi[:, 1:] > 2 * 35e-6 * 0.5).all()  # off the skin (the target is 2 r + clearance)
+    assert np.median(phi[:, -1]) > 0.004  # most tips reach their layer
+    with pytest.raises(ParameterError, match="band"):
+        head_scene(300, 12, layer_thickness=0.04, field=head_field)
+    assert head_field_band(0.005) <= head_field.band

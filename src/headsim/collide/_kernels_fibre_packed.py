@@ -64,15 +64,93 @@ def segment_boxes(nodes, seg_start, radius, box):
 
 
 @njit(cache=True)
-def build_packed(box, perm, leaf_size, child, first, count):
-    """Top-down mid-plane split (H_R) down to ≤ ``leaf_size`` segments per leaf.
+def _sah_split(box, perm, a0, b0, n_bins, bins_n, bins_box):
+    """Binned surface-area-heuristic split of slots a0:b0 (centroid bins on each axis).
+
+    Returns (axis, threshold) with the threshold on 2 × midpoint (a segment goes left when
+    ``lo + hi < threshold``), or (−1, 0) when all centroids coincide.
+    """
+    cmin = np.empty(3)
+    cmax = np.empty(3)
+    for c in range(3):
+        cmin[c] = np.inf
+        cmax[c] = -np.inf
+    for k in range(a0, b0):
+        s = perm[k]
+        for c in range(3):
+            m2 = box[s, c] + box[s, 3 + c]
+            if m2 < cmin[c]:
+                cmin[c] = m2
+            if m2 > cmax[c]:
+                cmax[c] = m2
+    best_cost = np.inf
+    best_axis = -1
+    best_thr = 0.0
+    for axis in range(3):
+        ext = cmax[axis] - cmin[axis]
+        if not ext > 0.0:
+            continue
+        scale = n_bins / ext
+        for b in range(n_bins):
+            bins_n[b] = 0
+            for c in range(3):
+                bins_box[b, c] = np.inf
+                bins_box[b, 3 + c] = -np.inf
+        for k in range(a0, b0):
+            s = perm[k]
+            b = int((box[s, axis] + box[s, 3 + axis] - cmin[axis]) * scale)
+            if b >= n_bins:
+                b = n_bins - 1
+            bins_n[b] += 1
+            for c in range(3):
+                if box[s, c] < bins_box[b, c]:
+                    bins_box[b, c] = box[s, c]
+                if box[s, 3 + c] > bins_box[b, 3 + c]:
+                    bins_box[b, 3 + c] = box[s, 3 + c]
+        # sweep from the right: area and count of bins b..n_bins-1
+        right_area = np.empty(n_bins)
+        right_n = np.empty(n_bins, np.int64)
+        lo0, lo1, lo2, hi0, hi1, hi2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
+        cnt = 0
+        for b in range(n_bins - 1, 0, -1):
+            lo0, lo1, lo2 = min(lo0, bins_box[b, 0]), min(lo1, bins_box[b, 1]), min(lo2, bins_box[b, 2])
+            hi0, hi1, hi2 = max(hi0, bins_box[b, 3]), max(hi1, bins_box[b, 4]), max(hi2, bins_box[b, 5])
+            cnt += bins_n[b]
+            right_n[b] = cnt
+            dx, dy, dz = hi0 - lo0, hi1 - lo1, hi2 - lo2
+            right_area[b] = dx * dy + dy * dz + dz * dx if cnt > 0 else 0.0
+        lo0, lo1, lo2, hi0, hi1, hi2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
+        cnt = 0
+        for b in range(n_bins - 1):
+            lo0, lo1, lo2 = min(lo0, bins_box[b, 0]), min(lo1, bins_box[b, 1]), min(lo2, bins_box[b, 2])
+            hi0, hi1, hi2 = max(hi0, bins_box[b, 3]), max(hi1, bins_box[b, 4]), max(hi2, bins_box[b, 5])
+            cnt += bins_n[b]
+            if cnt == 0 or right_n[b + 1] == 0:
+                continue
+            dx, dy, dz = hi0 - lo0, hi1 - lo1, hi2 - lo2
+            cost = (dx * dy + dy * dz + dz * dx) * cnt + right_area[b + 1] * right_n[b + 1]
+            if cost < best_cost:
+                best_cost = cost
+                best_axis = axis
+                best_thr = cmin[axis] + (b + 1) / scale
+    return best_axis, best_thr
+
+
+@njit(cache=True)
+def build_packed(box, perm, leaf_size, child, first, count, rule=0):
+    """Top-down split (H_R) down to ≤ ``leaf_size`` segments per leaf.
 
     box (S, 6) float64 capsule boxes (global ids); perm (S,) slot → segment, reordered in place;
     child/first/count (≥ 2S,) int64 outputs (node 1 is an unused empty slot, so every sibling pair
-    starts at an even id and shares one 64-byte line of the node records). A node is split at the mid-plane of its box's longest
+    starts at an even id and shares one 64-byte line of the node records).
+    ``rule`` 0 (the AS rule of Sobottka §7.3.3): a node is split at the mid-plane of its box's longest
     axis (a segment goes by its box midpoint); if all midpoints fall on one side, the next longest
-    axes, then the mean midpoint on each axis, then an index split are tried. Returns the node count.
+    axes, then the mean midpoint on each axis, then an index split are tried. ``rule`` 1: binned
+    surface-area heuristic (16 centroid bins per axis), with the same fallbacks. Returns the node count.
     """
+    n_bins = 16
+    bins_n = np.zeros(n_bins, np.int64)
+    bins_box = np.empty((n_bins, 6))
     n_leaves = perm.shape[0]
     first[0] = 0
     count[0] = n_leaves
@@ -115,7 +193,22 @@ def build_packed(box, perm, leaf_size, child, first, count):
             if e1 > e0:
                 o0, o1 = o1, o0
         mid = -1
+        if rule == 1:
+            axis, split = _sah_split(box, perm, a0, b0, n_bins, bins_n, bins_box)
+            if axis >= 0:
+                i, j = a0, b0 - 1
+                while i <= j:
+                    s = perm[i]
+                    if box[s, axis] + box[s, 3 + axis] < split:
+                        i += 1
+                    else:
+                        perm[i], perm[j] = perm[j], perm[i]
+                        j -= 1
+                if a0 < i < b0:
+                    mid = i
         for attempt in range(6):
+            if mid >= 0:
+                break
             axis = o0 if attempt % 3 == 0 else (o1 if attempt % 3 == 1 else o2)
             if attempt < 3:
                 split = lo[axis] + hi[axis]  # 2 × mid-plane

@@ -73,12 +73,14 @@ def capsule_contacts_bruteforce(fibres: FibreSet, nodes=None, chunk: int = 2_000
     return pairs[order].astype(np.int64), params[order]
 
 
-def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 2_000):
+def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 50_000):
     """Peer method: cKDTree broad phase on segment midpoints + NumPy exact test.
 
     Two capsules can touch only if their midpoints are closer than ``(L_a + L_b)/2 + r_a + r_b``, so a
-    ball query with ``max length + 2 max radius`` finds every candidate. Candidates are generated for
-    ``chunk`` segments at a time (memory stays bounded). Returns like :func:`capsule_contacts_bruteforce`.
+    ball query with ``max length + 2 max radius`` finds every candidate. The query runs ``chunk``
+    segments at a time (a small tree of the chunk against the full tree,
+    ``sparse_distance_matrix(..., output_type="ndarray")``), so memory stays bounded by the
+    candidates of one chunk. Returns like :func:`capsule_contacts_bruteforce`.
     """
     from scipy.spatial import cKDTree
 
@@ -90,10 +92,9 @@ def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 2_000):
     tree = cKDTree(mid)
     out_p, out_s = [], []
     for c0 in range(0, len(mid), chunk):
-        lists = tree.query_ball_point(mid[c0 : c0 + chunk], reach)
-        cnt = np.fromiter((len(l) for l in lists), np.int64, len(lists))
-        b = np.fromiter((j for l in lists for j in l), np.int64, int(cnt.sum()))
-        a = np.repeat(np.arange(c0, c0 + len(lists), dtype=np.int64), cnt)
+        near = cKDTree(mid[c0 : c0 + chunk]).sparse_distance_matrix(tree, reach, output_type="ndarray")
+        a = near["i"].astype(np.int64) + c0
+        b = near["j"].astype(np.int64)
         keep = b > a
         a, b = a[keep], b[keep]
         hit, s, t = _test_pairs(fibres, x, a, b)

@@ -452,12 +452,15 @@ class PackedFibreBVH(FibreBVH):
     seg64 : (S, 8) float64 endpoints (m) and radius of every slot's segment (exact test).
     """
 
-    def __init__(self, fibres: FibreSet, leaf_size: int = 8, *, threads: int | None = None):
+    def __init__(self, fibres: FibreSet, leaf_size: int = 8, *, split: str = "sah", threads: int | None = None):
         if not isinstance(fibres, FibreSet):
             raise ParameterError("PackedFibreBVH needs a FibreSet (see headsim.collide.fibres_from_arrays)")
         if not 1 <= int(leaf_size) <= 64:
             raise ParameterError(f"leaf_size must be 1…64 segments, got {leaf_size}")
+        if split not in ("sah", "mid"):
+            raise ParameterError(f"split must be 'sah' or 'mid', got {split!r}")
         self.leaf_size = int(leaf_size)
+        self.split = split
         self.fibres = fibres
         self.bv = AABB()
         self.hierarchy = "spatial"
@@ -490,7 +493,7 @@ class PackedFibreBVH(FibreBVH):
         child = np.empty(2 * s, np.int64)
         first = np.empty(2 * s, np.int64)
         count = np.empty(2 * s, np.int64)
-        n = P.build_packed(box, self.perm, self.leaf_size, child, first, count)
+        n = P.build_packed(box, self.perm, self.leaf_size, child, first, count, 1 if self.split == "sah" else 0)
         del box
         self.child, self.first, self.count = child[:n].copy(), first[:n].copy(), count[:n].copy()
         self.nbox = _aligned_records(n)

@@ -189,8 +189,8 @@ def head_field_band(layer_thickness: float = 0.04, radius: float = 35e-6) -> flo
 
 def head_scene(n_fibres: int | None = 49_000, segments_per_fibre: int = 49, *, length: float = 0.12,
                radius: float = 35e-6, density: float = ROOT_DENSITY, gravity: float = 0.25,
-               noise: float = 0.15, layer_thickness: float = 0.04, climb: float = 0.5, field=None,
-               seed: int = 0) -> FibreSet:
+               noise: float = 0.15, layer_thickness: float = 0.04, climb: float = 0.5,
+               push_iterations: int = 10, field=None, seed: int = 0) -> FibreSet:
     """Full-head hair (Charming stand-in: 49 k fibres, 2.4 M segments at 325 roots/cm²).
 
     Roots from :func:`scalp_roots` on the bundled head; each fibre starts along the skin normal and
@@ -201,7 +201,8 @@ def head_scene(n_fibres: int | None = 49_000, segments_per_fibre: int = 49, *, l
     by at most ``climb`` segment lengths per segment, and after every push-out the node is put back
     at the segment length from its predecessor: all segments have length ``length /
     segments_per_fibre`` (inextensible fibres), and the clearance is reached where the fibre can
-    climb to it (up to three push-outs per node, so a node may stay a little below its target).
+    climb to it (up to ``push_iterations`` push-outs per node, so a node may stay a little below its
+    target).
     """
     from headsim.data import head_path
 
@@ -235,7 +236,7 @@ def head_scene(n_fibres: int | None = 49_000, segments_per_fibre: int = 49, *, l
         p = pts[:, j - 1] + seg * d
         # the clearance rises by at most climb × seg per segment, so the fibre can follow it
         target = np.minimum(clearance, 2 * radius + climb * seg * j)
-        for _ in range(3):
+        for _ in range(push_iterations):
             phi = field.distance(p)
             inside = phi < target
             if not inside.any():
