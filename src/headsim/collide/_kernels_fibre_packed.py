@@ -307,11 +307,24 @@ def _ovl(ba, i, bb, j):
 @njit(cache=True, inline="always")
 def _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out):
     """Exact capsule test (float64) of slots i, j with segment ids sa < sb (slot i holds sa); on a hit
-    append (sa, sb, s, t) to the outputs (grown as needed)."""
+    append (sa, sb, s, t) to the outputs (grown as needed).
+
+    First a separating-axis reject along n = d_a × d_b: the distance of the two carrier lines,
+    |Δ·n| / |n|, bounds the segment distance from below, so a pair with (Δ·n)² > (r_a + r_b)² |n|²
+    (with a 1e-6 relative safety margin against rounding) cannot touch; every other pair gets the
+    exact closest-point test, so the result is that of the plain test.
+    """
+    rr = seg64[i, 6] + seg64[j, 6]
+    ax, ay, az = seg64[i, 3] - seg64[i, 0], seg64[i, 4] - seg64[i, 1], seg64[i, 5] - seg64[i, 2]
+    bx, by, bz = seg64[j, 3] - seg64[j, 0], seg64[j, 4] - seg64[j, 1], seg64[j, 5] - seg64[j, 2]
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    dn = (nx * (seg64[j, 0] - seg64[i, 0]) + ny * (seg64[j, 1] - seg64[i, 1])
+          + nz * (seg64[j, 2] - seg64[i, 2]))
+    if dn * dn > rr * rr * (nx * nx + ny * ny + nz * nz) * (1.0 + 1e-6):
+        return False, out_pairs, out_par, n_out
     s, t, d2 = segment_segment_closest(seg64[i, 0], seg64[i, 1], seg64[i, 2], seg64[i, 3], seg64[i, 4],
                                        seg64[i, 5], seg64[j, 0], seg64[j, 1], seg64[j, 2], seg64[j, 3],
                                        seg64[j, 4], seg64[j, 5])
-    rr = seg64[i, 6] + seg64[j, 6]
     hit = d2 < rr * rr
     if hit:
         if n_out == out_pairs.shape[0]:
