@@ -30,20 +30,19 @@ _NEG = np.float32(-np.inf)
 _POS = np.float32(np.inf)
 
 
+_PAD = 2.0 ** -22  # > half a float32 ulp relative to |x|, so the rounded value stays on the safe side
+
+
 @njit(cache=True, inline="always")
 def _down(x):
-    y = np.float32(x)
-    if y > x:
-        y = np.nextafter(y, _NEG)
-    return y
+    """A float32 ≤ x (float64): x moved down by |x|·2⁻²² (+1e-30 m) before rounding to nearest."""
+    return np.float32(x - abs(x) * _PAD - 1e-30)
 
 
 @njit(cache=True, inline="always")
 def _up(x):
-    y = np.float32(x)
-    if y < x:
-        y = np.nextafter(y, _POS)
-    return y
+    """A float32 ≥ x (float64)."""
+    return np.float32(x + abs(x) * _PAD + 1e-30)
 
 
 @njit(cache=True, parallel=True)
@@ -248,18 +247,18 @@ def build_packed(box, perm, leaf_size, child, first, count, rule=0):
 
 
 @njit(cache=True, parallel=True)
-def refit_packed(nodes, seg_start, radius, perm, child, first, count, sbox, nbox, seg64):
+def refit_packed(nodes, slot_node, slot_radius, child, first, count, sbox, nbox, seg64):
     """Segment records in slot order, leaf boxes from their segments, inner boxes = MERGE (Alg. 5).
 
+    ``slot_node`` (S,) first node of every slot's segment, ``slot_radius`` (S,) its radius (m).
     Boxes float32, rounded outwards; ``seg64`` (S, 8) float64 per slot: both endpoints (m, the exact
     node values) and the radius, for the exact capsule test. Leaves in parallel, inner nodes in
     decreasing id order (children have larger ids). Linear in the number of segments.
     """
-    n_slots = perm.shape[0]
+    n_slots = slot_node.shape[0]
     for k in prange(n_slots):
-        s = perm[k]
-        i = seg_start[s]
-        r = radius[s]
+        i = slot_node[k]
+        r = slot_radius[k]
         seg64[k, 6] = r
         for c in range(3):
             a = nodes[i, c]

@@ -499,6 +499,8 @@ class PackedFibreBVH(FibreBVH):
         self.nbox = _aligned_records(n)
         self.sbox = _aligned_records(s)
         self.seg64 = np.empty((s, 8))
+        self._slot_node = np.ascontiguousarray(f.segment_start[self.perm])
+        self._slot_radius = np.ascontiguousarray(f.radius[self.perm])
         nmeta, smeta = self.nbox.view(np.int32), self.sbox.view(np.int32)
         nmeta[:, 6] = np.where(self.child >= 0, self.child, -(self.first + 1))
         nmeta[:, 7] = self.count
@@ -508,8 +510,7 @@ class PackedFibreBVH(FibreBVH):
         self._quality_ref = self._quality()
 
     def _refit(self):
-        f = self.fibres
-        P.refit_packed(self.nodes, f.segment_start, f.radius, self.perm, self.child, self.first, self.count,
+        P.refit_packed(self.nodes, self._slot_node, self._slot_radius, self.child, self.first, self.count,
                        self.sbox, self.nbox, self.seg64)
 
     def update(self, nodes=None) -> float:
