@@ -63,14 +63,13 @@ def segment_boxes(nodes, seg_start, radius, box):
 
 
 @njit(cache=True)
-def _sah_split(box, perm, a0, b0, n_bins, bins_n, bins_box):
+def _sah_split(box, perm, a0, b0, n_bins, bins_n, bins_box, right_area, right_n, cs):
     """Binned surface-area-heuristic split of slots a0:b0 (centroid bins on each axis).
 
     Returns (axis, threshold) with the threshold on 2 × midpoint (a segment goes left when
     ``lo + hi < threshold``), or (−1, 0) when all centroids coincide.
     """
-    cmin = np.empty(3)
-    cmax = np.empty(3)
+    cmin, cmax, scales = cs[0], cs[1], cs[2]  # scratch rows
     for c in range(3):
         cmin[c] = np.inf
         cmax[c] = -np.inf
@@ -87,43 +86,51 @@ def _sah_split(box, perm, a0, b0, n_bins, bins_n, bins_box):
     best_thr = 0.0
     for axis in range(3):
         ext = cmax[axis] - cmin[axis]
-        if not ext > 0.0:
-            continue
-        scale = n_bins / ext
+        scales[axis] = 0.0
+        if ext > 0.0:
+            scales[axis] = n_bins / ext
         for b in range(n_bins):
-            bins_n[b] = 0
+            bins_n[axis, b] = 0
             for c in range(3):
-                bins_box[b, c] = np.inf
-                bins_box[b, 3 + c] = -np.inf
-        for k in range(a0, b0):
-            s = perm[k]
-            b = int((box[s, axis] + box[s, 3 + axis] - cmin[axis]) * scale)
+                bins_box[axis, b, c] = np.inf
+                bins_box[axis, b, 3 + c] = -np.inf
+    # one pass bins every segment on all three axes
+    for k in range(a0, b0):
+        s = perm[k]
+        for axis in range(3):
+            if scales[axis] == 0.0:
+                continue
+            b = int((box[s, axis] + box[s, 3 + axis] - cmin[axis]) * scales[axis])
             if b >= n_bins:
                 b = n_bins - 1
-            bins_n[b] += 1
+            bins_n[axis, b] += 1
             for c in range(3):
-                if box[s, c] < bins_box[b, c]:
-                    bins_box[b, c] = box[s, c]
-                if box[s, 3 + c] > bins_box[b, 3 + c]:
-                    bins_box[b, 3 + c] = box[s, 3 + c]
+                if box[s, c] < bins_box[axis, b, c]:
+                    bins_box[axis, b, c] = box[s, c]
+                if box[s, 3 + c] > bins_box[axis, b, 3 + c]:
+                    bins_box[axis, b, 3 + c] = box[s, 3 + c]
+    for axis in range(3):
+        if scales[axis] == 0.0:
+            continue
+        scale = scales[axis]
         # sweep from the right: area and count of bins b..n_bins-1
-        right_area = np.empty(n_bins)
-        right_n = np.empty(n_bins, np.int64)
         lo0, lo1, lo2, hi0, hi1, hi2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
         cnt = 0
         for b in range(n_bins - 1, 0, -1):
-            lo0, lo1, lo2 = min(lo0, bins_box[b, 0]), min(lo1, bins_box[b, 1]), min(lo2, bins_box[b, 2])
-            hi0, hi1, hi2 = max(hi0, bins_box[b, 3]), max(hi1, bins_box[b, 4]), max(hi2, bins_box[b, 5])
-            cnt += bins_n[b]
+            bb = bins_box[axis, b]
+            lo0, lo1, lo2 = min(lo0, bb[0]), min(lo1, bb[1]), min(lo2, bb[2])
+            hi0, hi1, hi2 = max(hi0, bb[3]), max(hi1, bb[4]), max(hi2, bb[5])
+            cnt += bins_n[axis, b]
             right_n[b] = cnt
             dx, dy, dz = hi0 - lo0, hi1 - lo1, hi2 - lo2
             right_area[b] = dx * dy + dy * dz + dz * dx if cnt > 0 else 0.0
         lo0, lo1, lo2, hi0, hi1, hi2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
         cnt = 0
         for b in range(n_bins - 1):
-            lo0, lo1, lo2 = min(lo0, bins_box[b, 0]), min(lo1, bins_box[b, 1]), min(lo2, bins_box[b, 2])
-            hi0, hi1, hi2 = max(hi0, bins_box[b, 3]), max(hi1, bins_box[b, 4]), max(hi2, bins_box[b, 5])
-            cnt += bins_n[b]
+            bb = bins_box[axis, b]
+            lo0, lo1, lo2 = min(lo0, bb[0]), min(lo1, bb[1]), min(lo2, bb[2])
+            hi0, hi1, hi2 = max(hi0, bb[3]), max(hi1, bb[4]), max(hi2, bb[5])
+            cnt += bins_n[axis, b]
             if cnt == 0 or right_n[b + 1] == 0:
                 continue
             dx, dy, dz = hi0 - lo0, hi1 - lo1, hi2 - lo2
@@ -148,8 +155,11 @@ def build_packed(box, perm, leaf_size, child, first, count, rule=0):
     surface-area heuristic (16 centroid bins per axis), with the same fallbacks. Returns the node count.
     """
     n_bins = 16
-    bins_n = np.zeros(n_bins, np.int64)
-    bins_box = np.empty((n_bins, 6))
+    bins_n = np.zeros((3, n_bins), np.int64)
+    bins_box = np.empty((3, n_bins, 6))
+    right_area = np.empty(n_bins)
+    right_n = np.empty(n_bins, np.int64)
+    cs = np.empty((3, 3))
     n_leaves = perm.shape[0]
     first[0] = 0
     count[0] = n_leaves
@@ -193,7 +203,7 @@ def build_packed(box, perm, leaf_size, child, first, count, rule=0):
                 o0, o1 = o1, o0
         mid = -1
         if rule == 1:
-            axis, split = _sah_split(box, perm, a0, b0, n_bins, bins_n, bins_box)
+            axis, split = _sah_split(box, perm, a0, b0, n_bins, bins_n, bins_box, right_area, right_n, cs)
             if axis >= 0:
                 i, j = a0, b0 - 1
                 while i <= j:
