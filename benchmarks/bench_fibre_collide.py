@@ -7,7 +7,7 @@ the same process: brute force (on a subsample), the SciPy cKDTree + NumPy peer, 
 (if installed), and the thesis' own comparisons (AS vs AL, refit vs rebuild, k sweep).
 
     python benchmarks/bench_fibre_collide.py --quick      # small sizes, ~2 min
-    python benchmarks/bench_fibre_collide.py              # thesis sizes (2.4 M-segment head: ~GBs, minutes)
+    python benchmarks/bench_fibre_collide.py              # thesis sizes (2.4 M-segment head: ~3 GB, minutes)
     python benchmarks/bench_fibre_collide.py --only B3    # one section
 
 Thesis reference numbers (Pentium IV 2.4 GHz): 2 M-segment AL update 300 ms; full head (549 k
@@ -27,7 +27,7 @@ import numpy as np
 
 from headsim.collide._reference_fibres import capsule_contacts_bruteforce, capsule_contacts_kdtree
 from headsim.collide.bounding_volumes import AABB, KDOP, kdop_directions, min_chordal_angle
-from headsim.collide.fibre_bvh import VARIANTS, FibreBVH, RebuildPolicy
+from headsim.collide.fibre_bvh import VARIANTS, FibreBVH, PackedFibreBVH, RebuildPolicy
 from headsim.collide.fibre_scenes import head_scene, loop_frames, soup_scene, strand_scene
 from headsim.collide.fibres import FibreSet
 
@@ -76,41 +76,44 @@ def fcl_available():
 
 
 def fcl_capsule_contacts(f: FibreSet):
-    """python-fcl peer: one capsule per segment in a DynamicAABBTree manager, self-collide."""
+    """python-fcl peer: one capsule per segment in a DynamicAABBTree manager, self-collide.
+
+    Returns the colliding segment pairs (a < b, sorted, same-fibre neighbours removed as in Alg. 3) and
+    the cpu seconds of FCL's own work (manager setup + self-collide, without building the Python objects).
+    Capsules that touch only at a point (FCL's test is ≤, ours is <) would differ; none occur in
+    random scenes.
+    """
     import fcl
 
     p, q = f.segment_endpoints()
-    objs = []
+    geoms, objs = [], []
+    z = np.array([0, 0, 1.0])
     for i in range(f.n_segments):
         d = q[i] - p[i]
         length = np.linalg.norm(d)
-        z = np.array([0, 0, 1.0])
         axis = np.cross(z, d / length)
         s = np.linalg.norm(axis)
         if s < 1e-12:
-            rot = np.eye(3)
+            rot = np.eye(3) if d[2] > 0 else np.diag([1.0, -1.0, -1.0])
         else:
             axis /= s
             ang = np.arctan2(s, z @ (d / length))
             kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
             rot = np.eye(3) + np.sin(ang) * kx + (1 - np.cos(ang)) * kx @ kx
-        objs.append(fcl.CollisionObject(fcl.Capsule(f.radius[i], length), fcl.Transform(rot, 0.5 * (p[i] + q[i]))))
+        g = fcl.Capsule(f.radius[i], length)
+        geoms.append(g)
+        objs.append(fcl.CollisionObject(g, fcl.Transform(rot, 0.5 * (p[i] + q[i]))))
+    index = {id(g): i for i, g in enumerate(geoms)}
+    c0 = time.process_time()
     mgr = fcl.DynamicAABBTreeCollisionManager()
     mgr.registerObjects(objs)
     mgr.setup()
-    req = fcl.CollisionRequest(num_max_contacts=1)
-    data = fcl.CollisionData(request=req)
-    pairs = []
-    index = {id(o): i for i, o in enumerate(objs)}
-
-    def cb(o1, o2, cdata):
-        res = fcl.CollisionResult()
-        if fcl.collide(o1, o2, req, res):
-            pairs.append((index[id(o1)], index[id(o2)]))
-        return False
-
-    mgr.collide(data, cb)
-    return np.array(pairs)
+    data = fcl.CollisionData(request=fcl.CollisionRequest(num_max_contacts=10**8, enable_contact=True))
+    mgr.collide(data, fcl.defaultCollisionCallback)
+    cpu = time.process_time() - c0
+    pairs = np.array([(index[id(c.o1)], index[id(c.o2)]) for c in data.result.contacts], np.int64).reshape(-1, 2)
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    return pairs[~f.adjacent(pairs[:, 0], pairs[:, 1])], cpu
 
 
 # -----------------------------------------------------------------------------------------------
@@ -156,79 +159,63 @@ def b2(quick):
     (pairs2, _), tds = timed(bs.self_contact_pairs)
     assert np.array_equal(pairs, pairs2)
     say(f"AS build {fmt(tbs)}; detection {fmt(tds)}; AS:AL detection (cpu) 1:{td.cpu / max(tds.cpu, 1e-9):.2f}")
+    del bs
+    ap, tba = timed(PackedFibreBVH, f)
+    aups = []
+    for i in range(5):
+        _, t = timed(ap.update, moved if i % 2 else f.nodes)
+        aups.append(t)
+    (pairs3, _), tda = timed(ap.self_contact_pairs)
+    assert np.array_equal(pairs, pairs3)
+    say(f"AP build {fmt(tba)}; update median {np.median([t.wall for t in aups]) * 1e3:.1f} ms wall, "
+        f"{np.median([t.cpu for t in aups]) * 1e3:.1f} ms cpu; detection {fmt(tda)}")
     RESULTS["B2"] = dict(segments=f.n_segments, update_ms_wall=wall * 1e3, update_ms_cpu=cpu * 1e3,
                          contacts=len(pairs), AL_detect=(td.wall, td.cpu), AS_detect=(tds.wall, tds.cpu),
-                         AS_build=(tbs.wall, tbs.cpu))
+                         AS_build=(tbs.wall, tbs.cpu), AP_build=(tba.wall, tba.cpu), AP_detect=(tda.wall, tda.cpu),
+                         AP_update_ms_cpu=float(np.median([t.cpu for t in aups]) * 1e3))
 
 
-def peer_partial(f, pairs, label, budget_s):
-    """The cKDTree peer on random chunks of query segments until ``budget_s`` cpu; extrapolate."""
-    from scipy.spatial import cKDTree
-
-    from headsim.collide._reference_fibres import _test_pairs
-
-    p, q = f.segment_endpoints()
-    mid = 0.5 * (p + q)
-    reach = np.linalg.norm(q - p, axis=1).max() + 2 * f.radius.max()
-    order = np.random.default_rng(0).permutation(f.n_segments)
-    with Timer() as t:
-        tree = cKDTree(mid)
-        done, found = 0, []
-        while done < len(order) and time.process_time() - t.c < budget_s:
-            idx = order[done:done + 2000]
-            lists = tree.query_ball_point(mid[idx], reach)
-            cnt = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-            b = np.fromiter((j for x in lists for j in x), np.int64, int(cnt.sum()))
-            a = np.repeat(idx, cnt)
-            keep = b > a  # as in the full peer: each candidate pair tested once
-            a, b = a[keep], b[keep]
-            hit, _, _ = _test_pairs(f, f.nodes, a, b)
-            found.append(np.stack([a[hit], b[hit]], 1))
-            done += len(idx)
-    frac = done / f.n_segments
-    got = np.unique(np.concatenate(found), axis=0) if found else np.zeros((0, 2), np.int64)
-    ok = bool(len(got) == 0 or (np.isin(got[:, 0] * f.n_segments + got[:, 1],
-                                        pairs[:, 0] * f.n_segments + pairs[:, 1])).all())
-    est = t.cpu / frac  # same work per query segment as the full peer
-    say(f"[{label}] cKDTree+NumPy peer: {frac:.1%} of the segments in {fmt(t)}; its contacts ⊂ BVH set: {ok}; "
-        f"extrapolated full run ≈ {est:,.0f} s cpu")
-
-    class T:
-        pass
-
-    tt = T()
-    tt.cpu, tt.wall = est, est
-    return tt, ok
-
-
-def peer_and_brute(f, pairs, label, brute_segments=3000, peer_budget=None):
-    """Run the cKDTree peer on the whole scene and brute force on a fibre subsample."""
+def peer_and_brute(f, pairs, label, brute_segments=3000):
+    """Run the cKDTree peer (chunked, memory-bounded) on the whole scene and brute force on a fibre subsample."""
     brute_fibres = max(2, int(brute_segments * f.n_fibres / f.n_segments))
-    if peer_budget:
-        tk, same = peer_partial(f, pairs, label, peer_budget)
-    else:
-        (kp, _), tk = timed(capsule_contacts_kdtree, f)
-        same = np.array_equal(kp, pairs)
-        say(f"[{label}] cKDTree+NumPy peer: {len(kp):,} contacts, {fmt(tk)}; same set as BVH: {same}")
+    (kp, _), tk = timed(capsule_contacts_kdtree, f)
+    same = np.array_equal(kp, pairs)
+    say(f"[{label}] cKDTree+NumPy peer: {len(kp):,} contacts, {fmt(tk)}; same set as BVH: {same}")
     rng = np.random.default_rng(0)
     ids = np.sort(rng.choice(f.n_fibres, min(brute_fibres, f.n_fibres), replace=False))
     sub = subset(f, ids)
     (bp, _), tbf = timed(capsule_contacts_bruteforce, sub)
-    bvh = FibreBVH(sub)
+    bvh = PackedFibreBVH(sub)
     (sp, _), tsub = timed(bvh.self_contact_pairs)
     scale = (f.n_segments / sub.n_segments) ** 2
     say(f"[{label}] brute force on {sub.n_segments:,}-segment subsample: {fmt(tbf)} "
         f"(same set as BVH: {np.array_equal(bp, sp)}); extrapolated O(S²) to full: {tbf.cpu * scale:,.0f} s cpu")
     if fcl_available():
-        small = subset(f, ids[: max(5, len(ids) // 3)])
-        fp, tf = timed(fcl_capsule_contacts, small)
-        bs = FibreBVH(small)
+        n_fcl = max(5, int(30_000 * f.n_fibres / f.n_segments))  # ≈ 30 k segments (FCL calls Python per pair)
+        small = subset(f, np.sort(rng.choice(f.n_fibres, min(n_fcl, f.n_fibres), replace=False)))
+        fp, fcl_cpu = fcl_capsule_contacts(small)
+        bs, tb2 = timed(PackedFibreBVH, small)
         (sp2, _), ts2 = timed(bs.self_contact_pairs)
-        say(f"[{label}] python-fcl capsules on {small.n_segments:,} segments: {len(fp)} pairs, {fmt(tf)}; "
-            f"BVH {fmt(ts2)}")
+        say(f"[{label}] python-fcl capsules on {small.n_segments:,} segments: {len(fp)} pairs, manager setup + "
+            f"self-collide {fcl_cpu:.4f} s cpu; same set as AP: {np.array_equal(fp, sp2)}; AP build + query "
+            f"{tb2.cpu + ts2.cpu:.4f} s cpu ({fcl_cpu / max(tb2.cpu + ts2.cpu, 1e-9):.1f}x)")
     else:
-        say(f"[{label}] python-fcl not installed (not on this machine's package index): skipped")
+        say(f"[{label}] python-fcl not installed (pip install python-fcl): skipped")
     return tk, same
+
+
+def scene_facts(f, label):
+    """Segment lengths, root spacing and contact density: is the stand-in comparable to the thesis' model?"""
+    from scipy.spatial import cKDTree
+
+    p, q = f.segment_endpoints()
+    length = np.linalg.norm(q - p, axis=1)
+    roots = f.nodes[f.fibre_offsets[:-1]]
+    d_nn = cKDTree(roots).query(roots, k=2)[0][:, 1]
+    say(f"[{label}] segment length min / median / max {length.min() * 1e3:.3f} / {np.median(length) * 1e3:.3f} / "
+        f"{length.max() * 1e3:.3f} mm; root nearest-neighbour distance median {np.median(d_nn) * 1e3:.3f} mm "
+        f"(325 /cm² on a square grid: {1e3 / np.sqrt(325e4):.3f} mm); radius {f.radius.mean() * 1e6:.0f} µm")
+    return dict(length=(length.min(), float(np.median(length)), length.max()), root_nn=float(np.median(d_nn)))
 
 
 def b3(quick, spheres, head_al, head_fibres=0):
@@ -236,9 +223,9 @@ def b3(quick, spheres, head_al, head_fibres=0):
     say(f"\n== B3 full head: {nf:,} fibres x 49 segments at 325 roots/cm² on the bundled head (§7.4.1) ==")
     f, tg = timed(head_scene, nf, 49)
     say(f"scene: {f.n_fibres:,} fibres, {f.n_segments:,} segments (generated in {tg.wall:.1f} s)")
-    out = {"segments": f.n_segments}
+    out = {"segments": f.n_segments, "scene": scene_facts(f, "head")}
     res = {}
-    for v in ("AS", "AL"):
+    for v in ("AP", "AS", "AL"):
         bvh, tb = timed(FibreBVH.from_variant, f, v)
         _, tu = timed(bvh.update)
         if v == "AL" and not (quick or head_al):
@@ -246,20 +233,26 @@ def b3(quick, spheres, head_al, head_fibres=0):
             out[v] = dict(build=(tb.wall, tb.cpu), update=(tu.wall, tu.cpu))
             continue
         (pairs, _), td = timed(bvh.self_contact_pairs)
+        _, tr = timed(bvh.self_contacts)  # query again + the FibreContacts records
         res[v] = (pairs, td)
-        say(f"{v}: build {fmt(tb)} | update {fmt(tu)} | detection {len(pairs):,} contacts {fmt(td)}")
+        say(f"{v}: build {fmt(tb)} | update {fmt(tu)} | detection {len(pairs):,} contacts {fmt(td)} | "
+            f"with records {fmt(tr)}")
         say(f"    {bvh.stats}")
         out[v] = dict(build=(tb.wall, tb.cpu), update=(tu.wall, tu.cpu), detect=(td.wall, td.cpu),
-                      contacts=len(pairs), bv_tests=bvh.stats.bv_tests, primitive_tests=bvh.stats.primitive_tests)
+                      records=(tr.wall, tr.cpu), contacts=len(pairs), bv_tests=bvh.stats.bv_tests,
+                      primitive_tests=bvh.stats.primitive_tests)
         del bvh
-    if "AL" in res:
-        assert np.array_equal(res["AS"][0], res["AL"][0])
-    tk, same = peer_and_brute(f, res["AS"][0], "head", peer_budget=120)
-    best = min(r[1].wall for r in res.values())
-    best_cpu = min(r[1].cpu for r in res.values())
+    for v in res:
+        assert np.array_equal(res["AP"][0], res[v][0]), v
+    n_c = len(res["AP"][0])
+    say(f"contacts {n_c:,} = {n_c / 550e3:.2f} x the thesis' ≈ 550 k on 'Charming' "
+        f"({n_c / f.n_segments:.3f} per segment)")
+    tk, same = peer_and_brute(f, res["AP"][0], "head")
+    ap = res["AP"][1]
     say("(cpu = summed over both threads; on an idle 2-core machine wall ≈ cpu / 2 for the parallel query)")
-    say(f"head all-contacts: best BVH {best:.2f} s wall / {best_cpu:.2f} s cpu; peer {tk.wall:.2f} s wall / "
-        f"{tk.cpu:.2f} s cpu; speed-up vs peer: {tk.wall / best:.1f}x wall, {tk.cpu / best_cpu:.1f}x cpu "
+    say(f"head all-contacts: AP {ap.wall:.2f} s wall / {ap.cpu:.2f} s cpu; AS {res['AS'][1].wall:.2f} s wall / "
+        f"{res['AS'][1].cpu:.2f} s cpu; peer {tk.wall:.2f} s wall / {tk.cpu:.2f} s cpu; AP speed-up vs peer: "
+        f"{tk.wall / ap.wall:.1f}x wall, {tk.cpu / ap.cpu:.1f}x cpu; vs AS {res['AS'][1].cpu / ap.cpu:.1f}x cpu "
         f"(goal ≤ 1 s and ≥ 5x; thesis AL 100 s)")
     if "AL" in res:
         say(f"AS:AL detection (cpu) = 1:{res['AL'][1].cpu / max(res['AS'][1].cpu, 1e-9):.2f} (thesis ≈ 1:10 on heads)")
@@ -283,16 +276,21 @@ def soup(quick):
     f = soup_scene(nf, 100, radius=r)
     say(f"radius calibrated to {r * 1e6:.0f} µm for ≈ {target:,.0f} contacts")
     res = {}
-    for v in ("AS", "AL", "DS", "DL"):
+    ref = None
+    for v in ("AP", "AS", "AL", "DS", "DL"):
         bvh, tb = timed(FibreBVH.from_variant, f, v, k=18)
         (pairs, _), td = timed(bvh.self_contact_pairs)
+        ref = pairs if ref is None else ref
+        assert np.array_equal(pairs, ref), v
         res[v] = td
         say(f"{v}: build {fmt(tb)} detection {len(pairs):,} contacts {fmt(td)}")
     tk, same = peer_and_brute(f, pairs, "soup")
     say(f"AS:AL detection (cpu) = 1:{res['AL'].cpu / res['AS'].cpu:.1f} (thesis 1:43); "
-        f"peer / AS = {tk.wall / res['AS'].wall:.1f}x wall, {tk.cpu / res['AS'].cpu:.1f}x cpu")
-    RESULTS["soup"] = dict(radius=r, contacts=len(pairs), AS=(res["AS"].wall, res["AS"].cpu),
-                           AL=(res["AL"].wall, res["AL"].cpu), peer=(tk.wall, tk.cpu))
+        f"peer / AS = {tk.wall / res['AS'].wall:.1f}x wall, {tk.cpu / res['AS'].cpu:.1f}x cpu; "
+        f"peer / AP = {tk.wall / res['AP'].wall:.1f}x wall, {tk.cpu / res['AP'].cpu:.1f}x cpu (goal ≥ 5x)")
+    RESULTS["soup"] = dict(radius=r, contacts=len(pairs), AP=(res["AP"].wall, res["AP"].cpu),
+                           AS=(res["AS"].wall, res["AS"].cpu), AL=(res["AL"].wall, res["AL"].cpu),
+                           peer=(tk.wall, tk.cpu))
 
 
 def b4_b5(quick):
@@ -354,7 +352,7 @@ def b6(quick):
         say(f"{'var':>4} {'build':>8} {'update':>8} {'detect':>8} {'first':>8} {'contacts':>9} {'BV tests':>11}"
             f" {'leaf BV':>10} {'prim':>9}")
         ref = None
-        for v in VARIANTS:
+        for v in ["AP", *VARIANTS]:
             bvh, tb = timed(FibreBVH.from_variant, f, v, k=18)
             _, tu = timed(bvh.update)
             (p, _), td = timed(bvh.self_contact_pairs)
@@ -364,7 +362,7 @@ def b6(quick):
                     bvh.self_contact_pairs("first")
             ref = p if ref is None else ref
             assert np.array_equal(p, ref), v
-            maint = tb.cpu if VARIANTS[v][1] == "spatial" else tu.cpu
+            maint = tb.cpu if v == "AP" or VARIANTS[v][1] == "spatial" else tu.cpu
             say(f"{v:>4} {tb.cpu:8.4f} {maint:8.4f} {td.cpu:8.4f} {tf.cpu / 20:8.5f} {len(p):9d} {s.bv_tests:11d}"
                 f" {s.leaf_bv_tests:10d} {s.primitive_tests:9d}")
             RESULTS["B6"].setdefault(name, {})[v] = dict(build=tb.cpu, maintenance=maint, detect=td.cpu,
@@ -415,8 +413,9 @@ def main(argv=None):
         f"cpus {os.cpu_count()}, load average {os.getloadavg()[0]:.1f}")
     # compile the kernels once on a tiny scene so timings exclude JIT
     tiny = strand_scene(4, 10, length=0.01)
-    for v in VARIANTS:
+    for v in ["AP", *VARIANTS]:
         FibreBVH.from_variant(tiny, v, k=14).self_contact_pairs()
+        FibreBVH.from_variant(tiny, v, k=14, threads=1).self_contact_pairs()
     sections = [s.strip() for s in a.only.split(",") if s.strip()] or ["B1", "B2", "B3", "soup", "B4", "B6", "B7"]
     for s in sections:
         {"B1": lambda: b1(a.quick), "B2": lambda: b2(a.quick), "B3": lambda: b3(a.quick, a.spheres, a.head_al, a.head_fibres),

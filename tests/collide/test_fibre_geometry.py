@@ -88,3 +88,52 @@ def test_crossing_axes_get_a_perpendicular_normal():
     c = capsule_contacts(f, [[0, 1]], [[0.5, 0.5]])
     np.testing.assert_allclose(np.abs(c.normal[0]), [0, 0, 1])
     assert c.depth[0] == pytest.approx(0.2)
+
+
+@pytest.fixture(scope="module")
+def head_field():
+    import trimesh
+
+    from headsim.collide.distance_field import GridDistanceField
+    from headsim.data import head_path
+
+    m = trimesh.load(head_path(), process=False)
+    return GridDistanceField.from_mesh(np.asarray(m.vertices), np.asarray(m.faces), 0.003, band=0.011)
+
+
+def test_head_scene_fibres_are_inextensible_and_outside_the_head(head_field):
+    from headsim.collide.fibre_scenes import head_field_band, head_scene
+
+    f = head_scene(300, 12, length=0.06, layer_thickness=0.005, field=head_field, seed=2)
+    p, q = f.segment_endpoints()
+    np.testing.assert_allclose(np.linalg.norm(q - p, axis=1), 0.06 / 12, rtol=1e-12)
+    phi = head_field.distance(f.nodes).reshape(300, 13)
+    assert (phi[:, 1:] > 2 * 35e-6 * 0.5).all()  # off the skin (the target is 2 r + clearance)
+    assert np.median(phi[:, -1]) > 0.004  # most tips reach their layer
+    with pytest.raises(ParameterError, match="band"):
+        head_scene(300, 12, layer_thickness=0.04, field=head_field)
+    assert head_field_band(0.005) <= head_field.band
+
+
+def test_numba_contact_records_equal_the_numpy_reference():
+    from headsim.collide._reference_fibres import capsule_contacts_numpy
+
+    rng = np.random.default_rng(3)
+    nodes = rng.normal(size=(40, 3))
+    nodes[10:12] = [[0, 0, 0], [1, 0, 0]]  # segment 9 (fibre 1): crosses segment 14 axis to axis
+    nodes[15:17] = [[0.5, -1, 0], [0.5, 1, 0]]
+    nodes[20:22] = [[0, 1, 0], [1, 1, 0]]  # segment 18: parallel to and on segment 9's axis line
+    nodes[25:27] = [[0, 0, 0], [0.95, 0, 0.1]]
+    f = FibreSet(nodes, [0, 10, 20, 30, 40], 0.1)
+    pairs = np.array([[9, 14], [0, 30], [3, 33], [9, 18], [19, 23]])
+    params = rng.uniform(size=(5, 2))
+    params[0] = [0.5, 0.5]
+    params[3] = [0.0, 0.0]
+    nodes2 = nodes.copy()
+    nodes2[20:22] = [[0, 0, 0], [1, 0, 0]]  # now segment 18 lies on segment 9: parallel, zero distance
+    for x in (nodes, nodes2):
+        got = capsule_contacts(f, pairs, params, nodes=x)
+        want = capsule_contacts_numpy(f, pairs, params, nodes=x)
+        for name in want.__dataclass_fields__:
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    np.testing.assert_allclose(np.linalg.norm(got.normal, axis=1), 1.0)

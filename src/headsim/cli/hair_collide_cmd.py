@@ -56,7 +56,8 @@ def collide_cmd(
     scene: str = typer.Option("strand", help="synthetic scene: strand | head | soup"),
     fibres: int = typer.Option(0, min=0, help="number of fibres (0: 200 strand, 4900 head, 1000 soup)"),
     segments: int = typer.Option(0, min=0, help="segments per fibre (0: 100 strand/soup, 49 head)"),
-    variant: str = typer.Option("AS", help="hierarchy: AS AL DS DL OS OW OL SS SW SL (Sobottka Table 7.1)"),
+    variant: str = typer.Option("AP", help="hierarchy: AP (packed AABB tree, fast) or Sobottka's Table 7.1 "
+                                            "AS AL DS DL OS OW OL SS SW SL"),
     k: int = typer.Option(18, help="k of the k-DOP variants (DS, DL)"),
     radius_um: float = typer.Option(35.0, min=0.0, help="fibre radius, µm"),
     seed: int = typer.Option(0, help="random seed of the scene"),
@@ -70,14 +71,14 @@ def collide_cmd(
     from rich.table import Table
 
     from headsim.cli._common import atomic_output_dir
-    from headsim.collide.fibre_bvh import VARIANTS, FibreBVH
-    from headsim.collide.fibre_scenes import head_scene, soup_scene, strand_scene
+    from headsim.collide.fibre_bvh import FAST_VARIANTS, VARIANTS, FibreBVH
+    from headsim.collide.fibre_scenes import head_field_band, head_scene, soup_scene, strand_scene
     from headsim.errors import ParameterError
 
     if scene not in SCENES:
         raise ParameterError(f"unknown scene {scene!r}; choose strand, head or soup")
-    if variant.upper() not in VARIANTS:
-        raise ParameterError(f"unknown variant {variant!r}; choose one of {', '.join(VARIANTS)}")
+    if variant.upper() not in VARIANTS and variant.upper() not in FAST_VARIANTS:
+        raise ParameterError(f"unknown variant {variant!r}; choose one of {', '.join([*FAST_VARIANTS, *VARIANTS])}")
     if not radius_um > 0:
         raise ParameterError("radius must be > 0 µm")
     r = radius_um * 1e-6
@@ -96,7 +97,8 @@ def collide_cmd(
             from headsim.data import head_path
 
             m = trimesh.load(head_path(), process=False)
-            field = GridDistanceField.from_mesh(np.asarray(m.vertices), np.asarray(m.faces), 0.003, band=0.012)
+            field = GridDistanceField.from_mesh(np.asarray(m.vertices), np.asarray(m.faces), 0.003,
+                                               band=head_field_band(radius=r))
             f = head_scene(fibres or 4900, segments or 49, radius=r, field=field, seed=seed)
         t_scene = time.perf_counter() - t0
     with console.status(f"building the {variant.upper()} hierarchy over {f.n_segments:,} segments …"):

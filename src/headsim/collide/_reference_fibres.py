@@ -5,6 +5,8 @@
 * :func:`capsule_contacts_bruteforce` — all colliding capsule pairs by the O(S²) test of every pair.
 * :func:`capsule_contacts_kdtree` — the "peer" method: a SciPy cKDTree on segment midpoints finds
   candidate pairs within ``max segment length + 2 max radius``, NumPy does the exact test.
+* :func:`capsule_contacts_numpy` — the contact records of :func:`~headsim.collide.fibres.capsule_contacts`
+  in plain NumPy.
 * :func:`point_mesh_distance_bruteforce` — exact point-to-triangle-mesh distance by testing every
   triangle (Ericson 2005, §5.1.5).
 """
@@ -13,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from headsim.collide.fibres import FibreSet
+from headsim.collide.fibres import FibreContacts, FibreSet
 
 
 def segment_closest_points(p1, q1, p2, q2):
@@ -73,12 +75,14 @@ def capsule_contacts_bruteforce(fibres: FibreSet, nodes=None, chunk: int = 2_000
     return pairs[order].astype(np.int64), params[order]
 
 
-def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 2_000):
+def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 50_000):
     """Peer method: cKDTree broad phase on segment midpoints + NumPy exact test.
 
     Two capsules can touch only if their midpoints are closer than ``(L_a + L_b)/2 + r_a + r_b``, so a
-    ball query with ``max length + 2 max radius`` finds every candidate. Candidates are generated for
-    ``chunk`` segments at a time (memory stays bounded). Returns like :func:`capsule_contacts_bruteforce`.
+    ball query with ``max length + 2 max radius`` finds every candidate. The query runs ``chunk``
+    segments at a time (a small tree of the chunk against the full tree,
+    ``sparse_distance_matrix(..., output_type="ndarray")``), so memory stays bounded by the
+    candidates of one chunk. Returns like :func:`capsule_contacts_bruteforce`.
     """
     from scipy.spatial import cKDTree
 
@@ -90,10 +94,9 @@ def capsule_contacts_kdtree(fibres: FibreSet, nodes=None, chunk: int = 2_000):
     tree = cKDTree(mid)
     out_p, out_s = [], []
     for c0 in range(0, len(mid), chunk):
-        lists = tree.query_ball_point(mid[c0 : c0 + chunk], reach)
-        cnt = np.fromiter((len(l) for l in lists), np.int64, len(lists))
-        b = np.fromiter((j for l in lists for j in l), np.int64, int(cnt.sum()))
-        a = np.repeat(np.arange(c0, c0 + len(lists), dtype=np.int64), cnt)
+        near = cKDTree(mid[c0 : c0 + chunk]).sparse_distance_matrix(tree, reach, output_type="ndarray")
+        a = near["i"].astype(np.int64) + c0
+        b = near["j"].astype(np.int64)
         keep = b > a
         a, b = a[keep], b[keep]
         hit, s, t = _test_pairs(fibres, x, a, b)
@@ -154,3 +157,48 @@ def point_mesh_distance_bruteforce(points, vertices, triangles):
         j = int(np.argmin(d))
         best[i], closest[i] = d[j], q[j]
     return best, closest
+
+
+def capsule_contacts_numpy(fibres: FibreSet, pairs: np.ndarray, params: np.ndarray,
+                           nodes: np.ndarray | None = None) -> FibreContacts:
+    """NumPy reference of :func:`headsim.collide.fibres.capsule_contacts` (same arithmetic, vectorised).
+
+    pairs : (n, 2) int64 segment ids (a < b); params : (n, 2) float64 closest-point parameters (s, t).
+    A zero centre-line distance (crossing axes) takes the normal ``d_a × d_b`` (or any
+    perpendicular of d_a if parallel).
+    """
+    x = fibres.nodes if nodes is None else nodes
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    params = np.asarray(params, np.float64).reshape(-1, 2)
+    a, b = pairs[:, 0], pairs[:, 1]
+    ia, ib = fibres.segment_start[a], fibres.segment_start[b]
+    da = x[ia + 1] - x[ia]
+    db = x[ib + 1] - x[ib]
+    ca = x[ia] + params[:, :1] * da
+    cb = x[ib] + params[:, 1:] * db
+    d = ca - cb
+    dist = np.linalg.norm(d, axis=1)
+    normal = np.empty_like(d)
+    ok = dist > 1e-300
+    normal[ok] = d[ok] / dist[ok, None]
+    if (~ok).any():
+        c = np.cross(da[~ok], db[~ok])
+        cn = np.linalg.norm(c, axis=1)
+        para = cn <= 1e-300
+        helper = np.where((np.abs(da[~ok][:, 0]) < 0.9)[:, None], [1.0, 0, 0], [0, 1.0, 0])
+        c[para] = np.cross(da[~ok][para], helper[para])
+        normal[~ok] = c / np.linalg.norm(c, axis=1, keepdims=True)
+    ra, rb = fibres.radius[a], fibres.radius[b]
+    return FibreContacts(
+        body_a=fibres.segment_fibre[a],
+        body_b=fibres.segment_fibre[b],
+        segment_a=a.copy(),
+        segment_b=b.copy(),
+        s_a=params[:, 0].copy(),
+        s_b=params[:, 1].copy(),
+        point_a=ca - ra[:, None] * normal,
+        point_b=cb + rb[:, None] * normal,
+        normal=normal,
+        depth=ra + rb - dist,
+        obstacle=np.zeros(len(a), bool),
+    )

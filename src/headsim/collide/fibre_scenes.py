@@ -22,7 +22,7 @@ import numpy as np
 from headsim.collide.fibres import FibreSet
 from headsim.errors import ParameterError
 
-__all__ = ["strand_scene", "soup_scene", "loop_frames", "head_scene", "ROOT_DENSITY"]
+__all__ = ["strand_scene", "soup_scene", "loop_frames", "head_scene", "head_field_band", "ROOT_DENSITY"]
 
 #: roots per m² (325 roots/cm², Sobottka §7.4)
 ROOT_DENSITY = 325.0e4
@@ -179,16 +179,30 @@ def scalp_roots(vertices, triangles, n_roots: int | None = None, *, density: flo
     return roots[order], normals[order]
 
 
+def head_field_band(layer_thickness: float = 0.04, radius: float = 35e-6) -> float:
+    """Band half-width (m) a head distance field needs for :func:`head_scene`: layer + 2 r + 5 mm.
+
+    Outside its narrow band a grid field holds a constant far value, so a clearance beyond the band
+    would be read wrongly (and push nodes far out)."""
+    return float(layer_thickness + 2 * radius + 0.005)
+
+
 def head_scene(n_fibres: int | None = 49_000, segments_per_fibre: int = 49, *, length: float = 0.12,
                radius: float = 35e-6, density: float = ROOT_DENSITY, gravity: float = 0.25,
-               noise: float = 0.15, layer_thickness: float = 0.04, field=None, seed: int = 0) -> FibreSet:
+               noise: float = 0.15, layer_thickness: float = 0.04, climb: float = 0.5,
+               push_iterations: int = 10, field=None, seed: int = 0) -> FibreSet:
     """Full-head hair (Charming stand-in: 49 k fibres, 2.4 M segments at 325 roots/cm²).
 
     Roots from :func:`scalp_roots` on the bundled head; each fibre starts along the skin normal and
-    bends towards −y (weight ``gravity``) with a random walk (``noise``); every node is kept out of
-    the head at Φ ≥ 2r + c_f with the head's distance field (built if ``field`` is None), where the
+    bends towards −y (weight ``gravity``) with a random walk (``noise``); every node is pushed out of
+    the head to Φ ≥ 2r + c_f with the head's distance field (built if ``field`` is None), where the
     clearance c_f grows linearly with the root's height rank up to ``layer_thickness``, so hair from
-    the crown lies over hair from lower down, as combed hair does.
+    the crown lies over hair from lower down, as combed hair does. Along a fibre the clearance rises
+    by at most ``climb`` segment lengths per segment, and after every push-out the node is put back
+    at the segment length from its predecessor: all segments have length ``length /
+    segments_per_fibre`` (inextensible fibres), and the clearance is reached where the fibre can
+    climb to it (up to ``push_iterations`` push-outs per node, so a node may stay a little below its
+    target).
     """
     from headsim.data import head_path
 
@@ -198,8 +212,13 @@ def head_scene(n_fibres: int | None = 49_000, segments_per_fibre: int = 49, *, l
 
     mesh = trimesh.load(head_path(), process=False)
     v, t = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    need = head_field_band(layer_thickness, radius)
     if field is None:
-        field = GridDistanceField.from_mesh(v, t, 0.003, band=0.012)
+        field = GridDistanceField.from_mesh(v, t, 0.003, band=need)
+    elif getattr(field, "band", np.inf) < need:
+        raise ParameterError(
+            f"the head field's band ({field.band * 1e3:.1f} mm) must cover the hair layer: ≥ {need * 1e3:.1f} mm "
+            "(beyond the band the field reads a constant far value; see head_field_band)")
     roots, normals = scalp_roots(v, t, n_fibres, density=density, seed=seed)
     rng = np.random.default_rng(seed + 1)
     nf = len(roots)
@@ -215,15 +234,21 @@ def head_scene(n_fibres: int | None = 49_000, segments_per_fibre: int = 49, *, l
         d = d + gravity * down + noise * rng.normal(size=(nf, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         p = pts[:, j - 1] + seg * d
-        phi = field.distance(p)
-        ramp = min(1.0, 4.0 * j / n)  # leave the scalp before reaching the layer
-        inside = phi < clearance * ramp
-        if inside.any():
+        # the clearance rises by at most climb × seg per segment, so the fibre can follow it
+        target = np.minimum(clearance, 2 * radius + climb * seg * j)
+        for _ in range(push_iterations):
+            phi = field.distance(p)
+            inside = phi < target
+            if not inside.any():
+                break
             g = field.normal(p[inside])
-            p[inside] += (clearance[inside] * ramp - phi[inside])[:, None] * g
+            p[inside] += (target[inside] - phi[inside])[:, None] * g
             # slide: keep the direction tangential to the skin
             dn = (d[inside] * g).sum(1, keepdims=True)
             d[inside] -= np.minimum(dn, 0) * g
             d[inside] /= np.linalg.norm(d[inside], axis=1, keepdims=True)
+            # inextensible: back to the segment length along the pushed-out direction
+            step = p[inside] - pts[inside, j - 1]
+            p[inside] = pts[inside, j - 1] + seg * step / np.linalg.norm(step, axis=1, keepdims=True)
         pts[:, j] = p
     return FibreSet(pts.reshape(-1, 3), _offsets(nf, n), radius)

@@ -256,30 +256,18 @@ def capsule_contacts(fibres: FibreSet, pairs: np.ndarray, params: np.ndarray,
 
     pairs : (n, 2) int64 segment ids (a < b); params : (n, 2) float64 closest-point parameters (s, t).
     A zero centre-line distance (crossing axes) takes the normal ``d_a × d_b`` (or any
-    perpendicular of d_a if parallel).
+    perpendicular of d_a if parallel). Computed by a Numba kernel (``_kernels_fibre_contacts``).
     """
-    x = fibres.nodes if nodes is None else nodes
-    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
-    params = np.asarray(params, np.float64).reshape(-1, 2)
+    from headsim.collide._kernels_fibre_contacts import contact_records
+
+    x = fibres.nodes if nodes is None else np.ascontiguousarray(nodes, dtype=np.float64)
+    pairs = np.ascontiguousarray(np.asarray(pairs, np.int64).reshape(-1, 2))
+    params = np.ascontiguousarray(np.asarray(params, np.float64).reshape(-1, 2))
+    n = len(pairs)
+    point_a, point_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    depth = np.empty(n)
+    contact_records(x, fibres.segment_start, fibres.radius, pairs, params, point_a, point_b, normal, depth)
     a, b = pairs[:, 0], pairs[:, 1]
-    ia, ib = fibres.segment_start[a], fibres.segment_start[b]
-    da = x[ia + 1] - x[ia]
-    db = x[ib + 1] - x[ib]
-    ca = x[ia] + params[:, :1] * da
-    cb = x[ib] + params[:, 1:] * db
-    d = ca - cb
-    dist = np.linalg.norm(d, axis=1)
-    normal = np.empty_like(d)
-    ok = dist > 1e-300
-    normal[ok] = d[ok] / dist[ok, None]
-    if (~ok).any():
-        c = np.cross(da[~ok], db[~ok])
-        cn = np.linalg.norm(c, axis=1)
-        para = cn <= 1e-300
-        helper = np.where((np.abs(da[~ok][:, 0]) < 0.9)[:, None], [1.0, 0, 0], [0, 1.0, 0])
-        c[para] = np.cross(da[~ok][para], helper[para])
-        normal[~ok] = c / np.linalg.norm(c, axis=1, keepdims=True)
-    ra, rb = fibres.radius[a], fibres.radius[b]
     return FibreContacts(
         body_a=fibres.segment_fibre[a],
         body_b=fibres.segment_fibre[b],
@@ -287,9 +275,9 @@ def capsule_contacts(fibres: FibreSet, pairs: np.ndarray, params: np.ndarray,
         segment_b=b.copy(),
         s_a=params[:, 0].copy(),
         s_b=params[:, 1].copy(),
-        point_a=ca - ra[:, None] * normal,
-        point_b=cb + rb[:, None] * normal,
+        point_a=point_a,
+        point_b=point_b,
         normal=normal,
-        depth=ra + rb - dist,
-        obstacle=np.zeros(len(a), bool),
+        depth=depth,
+        obstacle=np.zeros(n, bool),
     )
