@@ -20,7 +20,8 @@ P_MODE = 7                                   # density model: 0 none, 1 binary (
 P_RHO_TOL, P_RHO_PEN = 8, 9                  # KDM predicted-density tolerance and its penalty factor
 P_FSCALE, P_LSCALE = 10, 11                  # K/L^2 (N) and K/L (N m): eta -> physical tip wrench
 P_DS = 12                                    # segment length, m
-N_PAR = 13
+P_RHO_SCALE = 13                             # 1 / mean density expected if all strands were spread evenly
+N_PAR = 14
 
 
 @njit(cache=True, inline="always")
@@ -139,8 +140,8 @@ def guide_objective(eta, par, R0, r0, K, pre_d3, pre_kl, pre_w,
             gx = 0.5 * (_tri(dens, dens_o, h, x + h, y, z, 0.0) - _tri(dens, dens_o, h, x - h, y, z, 0.0))
             gy = 0.5 * (_tri(dens, dens_o, h, x, y + h, z, 0.0) - _tri(dens, dens_o, h, x, y - h, z, 0.0))
             gz = 0.5 * (_tri(dens, dens_o, h, x, y, z + h, 0.0) - _tri(dens, dens_o, h, x, y, z - h, 0.0))
-            p = gx * R[j, 0, 2] + gy * R[j, 1, 2] + gz * R[j, 2, 2]
-            rho = _tri(dens, dens_o, h, x, y, z, 0.0)
+            p = (gx * R[j, 0, 2] + gy * R[j, 1, 2] + gz * R[j, 2, 2]) * par[P_RHO_SCALE]
+            rho = _tri(dens, dens_o, h, x, y, z, 0.0) * par[P_RHO_SCALE]
             over = rho - par[P_RHO_TOL]
             F4 += p * p + (par[P_RHO_PEN] * over if over > 0.0 else 0.0)
         F4 /= N

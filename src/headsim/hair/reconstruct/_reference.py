@@ -43,7 +43,7 @@ def reference_objective(eta, R0, r0, K, length, n_segments, pre_d3, pre_kl, pre_
     from headsim.hair.fibres import fibre_model
     from headsim.solvers.rods_statics import pai_static
 
-    par = objective_parameters(options, density.mode, K, length, n_segments)
+    par = objective_parameters(options, density.mode, K, length, n_segments, density.scale)
     N = n_segments
     # the default keratin fibre: its stiffness is growth.rod_stiffness() (pass that K), its root frame
     # straight_frame(d3, d2) = R0 for frames from growth.root_frames
@@ -65,8 +65,9 @@ def reference_objective(eta, R0, r0, K, length, n_segments, pre_d3, pre_kl, pre_
     elif density.mode == 2:
         h = density.spacing
         g = np.stack([0.5 * (grid.distance(x + h * e) - grid.distance(x - h * e)) for e in np.eye(3)], axis=1)
-        p = (g * d3[1:]).sum(1)
-        over = grid.distance(x) - options.rho_tolerance
+        sc = density.scale
+        p = (g * d3[1:]).sum(1) * sc
+        over = grid.distance(x) * sc - options.rho_tolerance
         F4 = (p * p + options.rho_penalty * np.maximum(over, 0.0)).sum() / N
     w = par[_k.P_W1:_k.P_W4 + 1]
     return float(w[0] * F1 + w[1] * F2 + w[2] * F3 + w[3] * F4)

@@ -42,6 +42,24 @@ class DensityGrid:
         if np.prod(dims.astype(float)) > 6e7:
             raise ParameterError(f"density grid {dims.tolist()} is too large; increase its spacing")
         self.values = np.zeros(tuple(dims))
+        self.scale = 1.0  # KDM: 1 / (mean value if all strands were spread evenly), see :meth:`calibrate`
+
+    def calibrate(self, head_field, hair_field, total_length: float) -> float:
+        """KDM: set ``scale`` = 1 / Phi_bar, Phi_bar = (total guide length / cell diagonal) / (admissible cells:
+        inside S_H and outside the head, counted on every second node). Returns Phi_bar."""
+        from headsim.hair.reconstruct._kernels import field_distance
+
+        if self.mode != 2:
+            return 1.0
+        nx, ny, nz = self.values.shape
+        g = np.stack(np.meshgrid(np.arange(0, nx, 2), np.arange(0, ny, 2), np.arange(0, nz, 2), indexing="ij"),
+                     -1).reshape(-1, 3)
+        p = self.origin + self.spacing * g
+        ok = (field_distance(hair_field, p) < 0) & (field_distance(head_field, p) > 0)
+        cells = max(1.0, 8.0 * ok.sum())
+        phi_bar = total_length / (self.spacing * np.sqrt(3.0)) / cells
+        self.scale = 1.0 / max(phi_bar, 1e-12)
+        return float(phi_bar)
 
     def add_strand(self, guide: np.ndarray, radius: np.ndarray, fibres: np.ndarray) -> None:
         """Update with a placed strand: guide (n, 3) m and its per-node strand radius (n,) m (BBM), its

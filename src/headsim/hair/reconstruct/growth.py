@@ -39,11 +39,11 @@ __all__ = ["GuideOptions", "PreGuides", "rod_stiffness", "root_frames", "rod_sha
 class GuideOptions:
     """Weights (w1 direction, w2 similarity, w3 boundary, w4 density; normalised to sum 1, eq. 5.7);
     margin delta m and exit penalty c_d of F3; eps m: width of the smoothed exit step; KDM predicted-density
-    tolerance (strands per voxel) and penalty; eta bounds (dimensionless force, torque); L-BFGS-B iterations
+    tolerance (in units of the mean density of evenly spread strands) and penalty; eta bounds (dimensionless force, torque); L-BFGS-B iterations
     and finite-difference step; depth schedule d_min m and the cap (fraction of the local thickness);
     cut tolerances: distance m and tolerated excursion length m."""
 
-    weights: tuple[float, float, float, float] = (0.25, 0.15, 0.45, 0.15)
+    weights: tuple[float, float, float, float] = (0.17, 0.10, 0.32, 0.41)
     margin: float = 0.003
     exit_penalty: float = 2.0
     eps: float = 0.0005
@@ -174,7 +174,8 @@ def grow_preguides(roots: Roots, hair_field, K, n_segments: int, options: GuideO
     return PreGuides(roots, r, R, kap, best_eta, depth, best_v <= 0)
 
 
-def objective_parameters(options: GuideOptions, density_mode: int, K, length: float, n_segments: int) -> np.ndarray:
+def objective_parameters(options: GuideOptions, density_mode: int, K, length: float, n_segments: int,
+                         density_scale: float = 1.0) -> np.ndarray:
     """The ``par`` vector of :func:`headsim.hair.reconstruct._kernels.guide_objective`."""
     par = np.zeros(_k.N_PAR)
     par[_k.P_W1:_k.P_W4 + 1] = options.normalised_weights()
@@ -190,6 +191,7 @@ def objective_parameters(options: GuideOptions, density_mode: int, K, length: fl
     par[_k.P_FSCALE] = Km / length**2
     par[_k.P_LSCALE] = Km / length
     par[_k.P_DS] = length / n_segments
+    par[_k.P_RHO_SCALE] = density_scale
     return par
 
 
@@ -200,7 +202,7 @@ def _grid(field_):
 def optimise_guide(R0, r0, K, length: float, n_segments: int, pre_d3, pre_kl, pre_w, head_field, hair_field,
                    density, options: GuideOptions, eta0=None):
     """One main guide (§5.3.3 b). Returns (eta (6,), f, positions (N+1, 3), frames (N+1, 3, 3), evaluations)."""
-    par = objective_parameters(options, density.mode, K, length, n_segments)
+    par = objective_parameters(options, density.mode, K, length, n_segments, density.scale)
     hv, ho, hh = _grid(head_field)
     sv, so, sh = _grid(hair_field)
     dv, do, dh = density.values, density.origin, density.spacing

@@ -167,6 +167,7 @@ def reconstruct(inputs: StyleInputs, options: StyleOptions = StyleOptions(), pro
     radius_g = np.maximum(radius_g, 0.5 * r_typ)
     lo, hi = inputs.volume.bounds
     dens = DensityGrid(options.density_model, lo, hi, float(np.clip(r_typ, 0.0015, 0.004)))
+    stats["kdm_mean_density"] = dens.calibrate(head_f, hair_f, float(groots.lengths.sum()))
     guides = np.empty((G, N + 1, 3))
     kept = np.empty(G, np.int64)
     fibres = np.empty((F, N + 1, 3))
