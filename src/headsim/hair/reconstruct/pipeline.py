@@ -195,7 +195,10 @@ def reconstruct(inputs: StyleInputs, options: StyleOptions = StyleOptions(), pro
 
     t0 = time.perf_counter()
     report("strands", 0, 1)
-    fibres = push_out_of_head(fibres, head_f, options.head_clearance)
+    from headsim.collide.bvh import TriangleBVH
+
+    fibres = push_out_of_head(fibres, head_f, options.head_clearance,
+                              head_bvh=TriangleBVH(inputs.head.vertices, inputs.head.triangles))
     last = cut_fibres(fibres, head_f, hair_f, go.cut_distance, go.cut_length)
     seglen = np.linalg.norm(np.diff(fibres, axis=1), axis=2)
     cum = np.cumsum(seglen, axis=1)

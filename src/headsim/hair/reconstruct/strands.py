@@ -40,8 +40,12 @@ def interpolate_strand(guide: np.ndarray, frames: np.ndarray, kept: int, roots: 
     return pos + fr[..., 0] * o1[..., None] + fr[..., 1] * o2[..., None] + fr[..., 2] * o3[..., None]
 
 
-def push_out_of_head(points: np.ndarray, head_field, clearance: float, passes: int = 3) -> np.ndarray:
-    """Move every point with Phi_head < clearance along the field's normal to Phi_head = clearance (m)."""
+def push_out_of_head(points: np.ndarray, head_field, clearance: float, passes: int = 3, head_bvh=None,
+                     band: float = 0.0015) -> np.ndarray:
+    """Move every point with Phi_head < clearance along the field's normal to Phi_head = clearance (m). With
+    ``head_bvh`` (a :class:`~headsim.collide.bvh.TriangleBVH` of the head), the points the grid puts within
+    clearance + ``band`` are then checked with the exact signed distance and moved to clearance along the
+    direction from their closest surface point (two passes)."""
     p = points.reshape(-1, 3).copy()
     for _ in range(passes):
         phi = _k.field_distance(head_field, p)
@@ -50,6 +54,22 @@ def push_out_of_head(points: np.ndarray, head_field, clearance: float, passes: i
             break
         nrm = head_field.normal(p[bad], scheme="central")
         p[bad] += (clearance - phi[bad])[:, None] * nrm
+    if head_bvh is not None:
+        cand = np.flatnonzero(_k.field_distance(head_field, p) < clearance + band)
+        for _ in range(2):
+            if cand.size == 0:
+                break
+            sd = head_bvh.signed_distance(p[cand])
+            low = sd < clearance
+            cand = cand[low]
+            if cand.size == 0:
+                break
+            cp = head_bvh.closest_points(p[cand])
+            v = p[cand] - cp.point
+            dist = np.linalg.norm(v, axis=1, keepdims=True)
+            tn = head_bvh.triangle_normals(cp.triangle)
+            out = np.where(dist > 1e-9, v / np.maximum(dist, 1e-300) * np.sign(sd[low])[:, None], tn)
+            p[cand] = cp.point + clearance * out
     return p.reshape(points.shape)
 
 
