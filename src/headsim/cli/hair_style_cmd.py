@@ -79,7 +79,7 @@ def style_cmd(
                                density_per_cm2=max_density, seed=seed)
         hs = reconstruct(inputs, options, report)
     summary = {"inputs": inputs.description, "density_model": density_model, "timings_s": hs.timings,
-               "stats": hs.stats, "guide_options": {k: v for k, v in asdict(options.guide).items() if k != "extra"},
+               "timings_cpu_s": hs.timings_cpu, "stats": hs.stats, "guide_options": {k: v for k, v in asdict(options.guide).items() if k != "extra"},
                "fibres_requested": fibres, "guides_requested": guides, "segments": segments, "length_m": length}
     with atomic_output_dir(out) as tmp:
         files = write_hairstyle(tmp, hs, inputs, summary, images=images, render=render, preset=preset)

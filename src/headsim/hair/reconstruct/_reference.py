@@ -1,8 +1,8 @@
 """Straightforward reference of the guide optimisation (tests and the benchmark's baseline).
 
 The same objective as :func:`headsim.hair.reconstruct._kernels.guide_objective`, written plainly with NumPy:
-the shape from :func:`headsim.solvers.rods_statics.pai_static` on a fresh :class:`RodModel`, field values from
-``GridDistanceField.distance``, the density gradient by central differences; optimised per guide by scipy
+the shape from :func:`headsim.solvers.rods_statics.pai_static` on a fresh :class:`RodModel`, field values by
+NumPy trilinear interpolation of the same grids, the density gradient by central differences; optimised per guide by scipy
 L-BFGS-B with scipy's own forward-difference gradient.
 """
 
@@ -17,17 +17,32 @@ from headsim.hair.reconstruct.growth import GuideOptions, objective_parameters
 __all__ = ["reference_objective", "reference_optimise_guide"]
 
 
-class _Grid:
-    """A density grid read like a distance field (trilinear, 0 outside)."""
+def _trilinear(values, origin, h, p, outside):
+    """Plain NumPy trilinear interpolation (the same rule as the collide kernels), ``outside`` off the grid."""
+    f = (np.asarray(p, float) - origin) / h
+    n = np.array(values.shape)
+    ok = np.all(np.isfinite(f) & (f >= 0) & (f <= n - 1), axis=1)
+    f = np.where(ok[:, None], f, 0.0)
+    i = np.minimum(np.floor(f).astype(np.int64), n - 2)
+    t = f - i
+    out = np.zeros(len(p))
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                w = (t[:, 0] if dx else 1 - t[:, 0]) * (t[:, 1] if dy else 1 - t[:, 1]) * (t[:, 2] if dz else 1 - t[:, 2])
+                out += w * values[np.minimum(i[:, 0] + dx, n[0] - 1), np.minimum(i[:, 1] + dy, n[1] - 1),
+                                  np.minimum(i[:, 2] + dz, n[2] - 1)]
+    return np.where(ok, out, outside)
 
-    def __init__(self, values, origin, spacing):
-        self.values, self.origin, self.spacing, self.far = values, origin, spacing, 0.0
+
+class _Grid:
+    """A grid read like a distance field with :func:`_trilinear`."""
+
+    def __init__(self, values, origin, spacing, far=0.0):
+        self.values, self.origin, self.spacing, self.far = values, origin, spacing, far
 
     def distance(self, p):
-        from headsim.collide.distance_field import GridDistanceField
-
-        return GridDistanceField(self.origin, self.spacing, self.values, far=0.0).distance(p) \
-            if self.values.shape[0] >= 2 else np.zeros(len(p))
+        return _trilinear(self.values, self.origin, self.spacing, p, self.far)
 
 
 def _boundary(d, margin, cd, eps):
@@ -56,6 +71,8 @@ def reference_objective(eta, R0, r0, K, length, n_segments, pre_d3, pre_kl, pre_
     F1 = sum(pre_w[c] * (wq * (1 - (d3 * pre_d3[c]).sum(1))).sum() / N for c in range(len(pre_w)))
     F2 = sum(pre_w[c] * np.sqrt((wq * ((kappa * length - pre_kl[c]) ** 2).sum(1)).sum() / N) for c in range(len(pre_w)))
     x = r[1:]
+    hair_field = _Grid(hair_field.values, hair_field.origin, hair_field.spacing, hair_field.far)
+    head_field = _Grid(head_field.values, head_field.origin, head_field.spacing, head_field.far)
     F3 = (_boundary(hair_field.distance(x), options.margin, options.exit_penalty, options.eps)
           + _boundary(-head_field.distance(x), options.margin, options.exit_penalty, options.eps)).sum() / N
     grid = _Grid(density.values, density.origin, density.spacing)

@@ -99,7 +99,7 @@ def rod_shapes(R0, r0, K, lengths, n_segments: int, eta: np.ndarray):
 def depth_schedule(roots: Roots, hair_field, options: GuideOptions) -> np.ndarray:
     """(n,) immersion depth per root, m (see the module docstring)."""
     p = roots.positions
-    thick = np.clip(-_k.field_distance(hair_field, p), 0.0, None)
+    thick = np.clip(-_k.field_distance(hair_field, p), 0.0, getattr(hair_field, "band", np.inf))  # band: exact
     y = p[:, 1]
     h = (y - y.min()) / max(np.ptp(y), 1e-12)
     z = p[:, 2]

@@ -82,7 +82,11 @@ def plot_parametrisation(path: Path, hs: Hairstyle) -> None:
     st = triangle_stretch(sm.scalp.vertices, t, uv)
     st = st / np.sqrt((sm.areas * st**2).sum() / sm.areas.sum())
     fig, ax = plt.subplots(figsize=(6.5, 6), dpi=110)
-    tp = ax.tripcolor(uv[:, 0], uv[:, 1], t, facecolors=st, cmap="viridis", edgecolors="none")
+    from matplotlib.colors import LogNorm
+
+    tp = ax.tripcolor(uv[:, 0], uv[:, 1], t, facecolors=st, cmap="viridis", edgecolors="none",
+                      norm=LogNorm(vmin=max(np.percentile(st, 1), 1e-3), vmax=np.percentile(st, 99)))
+    ax.triplot(uv[:, 0], uv[:, 1], t, color="w", lw=0.1, alpha=0.4)
     fig.colorbar(tp, ax=ax, label="L2 stretch / mean")
     hist = ", ".join(f"{s:.3f}" for s in sm.param.stretch_history)
     ax.set_title(f"Floater mean-value map + stretch relaxation\ntotal stretch {hist}", fontsize=9)

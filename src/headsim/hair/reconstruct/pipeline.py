@@ -65,7 +65,8 @@ class StyleOptions:
 class Hairstyle:
     """nodes (n, 3) m and fibre_offsets (F+1,) int64: the fibres (CSR, root first; the guides are fibres too);
     strand (F,) guide index of each fibre; is_guide (F,) bool; guides (G, N+1, 3) uncut optimised guides and
-    guide_kept (G,) their last kept node; preguides (P, N+1, 3); radius m; timings s per stage; stats."""
+    guide_kept (G,) their last kept node; preguides (P, N+1, 3); radius m; timings / timings_cpu: wall / CPU
+    (process_time) s per stage; stats."""
 
     nodes: np.ndarray
     fibre_offsets: np.ndarray
@@ -76,6 +77,7 @@ class Hairstyle:
     preguides: np.ndarray
     radius: float
     timings: dict
+    timings_cpu: dict
     stats: dict
     scalp_map: ScalpMap
 
@@ -107,6 +109,7 @@ def reconstruct(inputs: StyleInputs, options: StyleOptions = StyleOptions(), pro
         raise ParameterError("need at least 1 guide and 2 segments per fibre")
     report = progress or (lambda stage, done, total: None)
     timings: dict[str, float] = {}
+    timings_cpu: dict[str, float] = {}
     stats: dict = {}
     go = options.guide
     N = options.n_segments
@@ -114,19 +117,21 @@ def reconstruct(inputs: StyleInputs, options: StyleOptions = StyleOptions(), pro
     if not 0 < length <= 1.5:
         raise ParameterError(f"hair length {length} m is implausible")
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     report("distance fields", 0, 1)
-    head_f, hair_f = fields if fields is not None else boundary_fields(
-        inputs, options.head_spacing, options.hair_spacing, depth=max(go.depth_cap * 0.04, 0.012))
+    head_f, hair_f = fields if fields is not None else boundary_fields(inputs, options.head_spacing,
+                                                                       options.hair_spacing)
     timings["distance fields"] = time.perf_counter() - t0
+    timings_cpu["distance fields"] = time.process_time() - c0
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     report("parametrisation", 0, 1)
     smap = ScalpMap(inputs.scalp)
     timings["parametrisation"] = time.perf_counter() - t0
+    timings_cpu["parametrisation"] = time.process_time() - c0
     stats["stretch"] = list(smap.param.stretch_history)
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     maps = options.maps or default_maps(length, options.density_per_cm2)
     roots = smap.sample_roots(*maps, n=options.n_fibres, seed=options.seed)
     F = len(roots)
@@ -138,17 +143,19 @@ def reconstruct(inputs: StyleInputs, options: StyleOptions = StyleOptions(), pro
     strand_of = cKDTree(roots.positions[guide_ids]).query(roots.positions)[1]
     strand_of[guide_ids] = np.arange(len(guide_ids))
     timings["roots"] = time.perf_counter() - t0
+    timings_cpu["roots"] = time.process_time() - c0
     stats.update(scalp_area_cm2=smap.area * 1e4, fibres=F, mean_density_per_cm2=F / (smap.area * 1e4),
                  preguides=len(pre_ids), guides=len(guide_ids))
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     report("pre-guides", 0, 1)
     K = rod_stiffness()
     pre = grow_preguides(roots.subset(pre_ids), hair_f, K, N, go)
     timings["pre-guides"] = time.perf_counter() - t0
+    timings_cpu["pre-guides"] = time.process_time() - c0
     stats["preguides_fitted"] = float(pre.fitted.mean())
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     G = len(guide_ids)
     groots = roots.subset(guide_ids)
     R0 = root_frames(groots)
@@ -191,9 +198,10 @@ def reconstruct(inputs: StyleInputs, options: StyleOptions = StyleOptions(), pro
             if k % 50 == 0 or k == G - 1:
                 report("guides", k + 1, G)
     timings["guides"] = time.perf_counter() - t0
+    timings_cpu["guides"] = time.process_time() - c0
     stats.update(objective_evaluations=evaluations, guides_cut=float((kept < N).mean()))
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     report("strands", 0, 1)
     from headsim.collide.bvh import TriangleBVH
 
@@ -211,13 +219,15 @@ def reconstruct(inputs: StyleInputs, options: StyleOptions = StyleOptions(), pro
     is_guide = np.zeros(F, bool)
     is_guide[guide_ids] = True
     timings["strands"] = time.perf_counter() - t0
+    timings_cpu["strands"] = time.process_time() - c0
     stats.update(fibres_kept=int(keep.sum()), fibres_dropped=int((~keep).sum()), fibres_cut=float((last < N).mean()))
     occ = occupancy_counts(nodes, offsets, OCCUPANCY_CELL)
     stats["occupancy_cv"] = coefficient_of_variation(occ)
     timings["total"] = float(sum(timings.values()))
+    timings_cpu["total"] = float(sum(timings_cpu.values()))
     if not np.isfinite(nodes).all():
         from headsim.errors import ConvergenceError
 
         raise ConvergenceError("the reconstruction produced non-finite fibre nodes")
     return Hairstyle(nodes, offsets, strand_of[keep], is_guide[keep], guides, kept, pre.positions,
-                     options.fibre_radius, timings, stats, smap)
+                     options.fibre_radius, timings, timings_cpu, stats, smap)
