@@ -19,7 +19,8 @@ def style_cmd(
                               help="head mesh the fibres must stay out of (default: the scalp)"),
     units: str = typer.Option("m", "--units", help="length unit of the mesh files: m, cm or mm"),
     demo: str = typer.Option(None, "--demo", help="bundled head with a generated volume: short | long"),
-    fibres: int = typer.Option(90_000, "--fibres", min=1, help="number of fibres (roots)"),
+    fibres: int = typer.Option(90_000, "--fibres", min=0,
+                               help="number of fibres (roots); 0: a Poisson process at --max-density"),
     guides: int = typer.Option(3000, "--guides", min=1, help="number of main guide hairs"),
     segments: int = typer.Option(24, "--segments", min=2, help="segments per fibre"),
     length_cm: float = typer.Option(0.0, "--length-cm", min=0.0, help="hair length, cm (0: the style's default)"),
@@ -27,7 +28,7 @@ def style_cmd(
     density_map: Path = typer.Option(None, "--density-map", exists=True, dir_okay=False,
                                      help="grey PNG over the unit disk's square: relative root density"),
     max_density: float = typer.Option(250.0, "--max-density", min=1.0,
-                                      help="roots/cm² at grey 255 of the density map (with --fibres 0: absolute)"),
+                                      help="roots/cm² at grey 255 of the density map (sets the count with --fibres 0)"),
     seed: int = typer.Option(0, "--seed", help="random seed"),
     images: bool = typer.Option(True, help="write the matplotlib pictures"),
     render: bool = typer.Option(False, "--render", help="also write a path-traced frame (rendered.png)"),
@@ -74,12 +75,12 @@ def style_cmd(
         def report(stage, done, total):
             progress.update(task, description=stage, completed=done, total=total)
 
-        options = StyleOptions(n_fibres=fibres, n_guides=guides, n_segments=segments, length=length,
+        options = StyleOptions(n_fibres=fibres or None, n_guides=guides, n_segments=segments, length=length,
                                style=demo, density_model=density_model, maps=maps,
                                density_per_cm2=max_density, seed=seed)
         hs = reconstruct(inputs, options, report)
     summary = {"inputs": inputs.description, "density_model": density_model, "timings_s": hs.timings,
-               "timings_cpu_s": hs.timings_cpu, "stats": hs.stats, "guide_options": {k: v for k, v in asdict(options.guide).items() if k != "extra"},
+               "timings_cpu_s": hs.timings_cpu, "stats": hs.stats, "guide_options": asdict(options.guide),
                "fibres_requested": fibres, "guides_requested": guides, "segments": segments, "length_m": length}
     with atomic_output_dir(out) as tmp:
         files = write_hairstyle(tmp, hs, inputs, summary, images=images, render=render, preset=preset)

@@ -9,7 +9,7 @@ All lengths in m; the objective terms are dimensionless.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from headsim.solvers._kernels.rods_statics import pai_integrate
 

@@ -81,8 +81,10 @@ def occupancy_counts(nodes: np.ndarray, fibre_offsets: np.ndarray, cell: float, 
     mid = 0.5 * (nodes[i] + nodes[i + 1])
     lo = mid.min(0) if lower is None else np.asarray(lower, float)
     ijk = np.floor((mid - lo) / cell).astype(np.int64)
-    _, counts = np.unique(ijk, axis=0, return_counts=True)
-    return counts
+    ijk -= ijk.min(axis=0)
+    dims = ijk.max(axis=0) + 1
+    counts = np.bincount((ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2])
+    return counts[counts > 0]
 
 
 def coefficient_of_variation(counts: np.ndarray) -> float:

@@ -21,7 +21,7 @@ f = eta_f K / L^2, l = eta_l K / L (K the mean bending stiffness, L the hair len
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize
@@ -41,7 +41,8 @@ class GuideOptions:
     margin delta m and exit penalty c_d of F3; eps m: width of the smoothed exit step; KDM predicted-density
     tolerance (in units of the mean density of evenly spread strands) and penalty; eta bounds (dimensionless force, torque); L-BFGS-B iterations
     and finite-difference step; depth schedule d_min m and the cap (fraction of the local thickness);
-    cut tolerances: distance m and tolerated excursion length m."""
+    cut tolerances: distance m and tolerated excursion length m; start: "pre-guide" (L-BFGS-B starts from the
+    root-distance-weighted wrench of the 3 nearest pre-guides) or "straight" (eta = 0, the seed's start)."""
 
     weights: tuple[float, float, float, float] = (0.17, 0.10, 0.32, 0.41)
     margin: float = 0.003
@@ -58,7 +59,6 @@ class GuideOptions:
     cut_distance: float = 0.001
     cut_length: float = 0.004
     start: str = "pre-guide"
-    extra: dict = field(default_factory=dict)
 
     def normalised_weights(self) -> np.ndarray:
         w = np.asarray(self.weights, float)
