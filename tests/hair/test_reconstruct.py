@@ -286,3 +286,27 @@ def test_first_exit_tolerates_short_excursions_only():
     hd = head.copy()
     hd[2:] = -0.002  # into the head and never back
     assert _k.first_exit(inside, hd, seg, 0.001, 0.004) == 1
+
+
+def test_strand_fibres_start_at_their_roots_and_keep_the_tapered_radius():
+    """Interpolated fibres ride in a generalised cylinder: fibre i starts at its own root, and its distance
+    from the guide's node is |o_i| T(s) with the taper T(s) = 1 - (1 - tip_ratio) s / L, with or without
+    winding (a rotation about the guide's tangent)."""
+    from headsim.hair.reconstruct.growth import rod_shapes, rod_stiffness
+    from headsim.hair.reconstruct.strands import interpolate_strand
+    from headsim.solvers.rods import straight_frame
+
+    K = rod_stiffness()
+    N, L = 20, 0.1
+    R0 = straight_frame((0, 1, 0.3), (0, 0, 1))[None]
+    r, R, _ = rod_shapes(R0, np.zeros((1, 3)), K, np.array([L]), N, np.array([[0.5, -2.0, 0.0, 0.3, 0.0, 0.0]]))
+    rng = np.random.default_rng(0)
+    off = rng.normal(size=(6, 3)) * 0.002
+    off -= (off @ R0[0][:, 2])[:, None] * R0[0][:, 2]  # offsets in the root's cross-section plane
+    roots = off
+    for winding in (0.0, 40.0):
+        fib = interpolate_strand(r[0], R[0], N, roots, np.full(6, L), L, N, tip_ratio=0.5, winding=winding)
+        np.testing.assert_allclose(fib[:, 0], roots, atol=1e-15)
+        taper = 1 - 0.5 * np.arange(N + 1) / N
+        dist = np.linalg.norm(fib - r[0][None], axis=2)
+        np.testing.assert_allclose(dist, np.linalg.norm(off, axis=1)[:, None] * taper[None], rtol=1e-12)

@@ -29,6 +29,9 @@ def style_cmd(
                                      help="grey PNG over the unit disk's square: relative root density"),
     max_density: float = typer.Option(250.0, "--max-density", min=1.0,
                                       help="roots/cm² at grey 255 of the density map (sets the count with --fibres 0)"),
+    tip_ratio: float = typer.Option(0.6, "--tip-ratio", min=0.0, max=1.0,
+                                    help="strand radius at the tip / at the root (generalised cylinder)"),
+    winding: float = typer.Option(0.0, "--winding", help="strand fibres wind about the guide, degrees per cm"),
     seed: int = typer.Option(0, "--seed", help="random seed"),
     images: bool = typer.Option(True, help="write the matplotlib pictures"),
     render: bool = typer.Option(False, "--render", help="also write a path-traced frame (rendered.png)"),
@@ -37,6 +40,7 @@ def style_cmd(
     """Grow a fibre hairstyle into a hair volume; write fibres.npz/.vtu, pictures and style.json."""
     from dataclasses import asdict
 
+    import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from headsim.cli._common import atomic_output_dir
@@ -77,7 +81,8 @@ def style_cmd(
 
         options = StyleOptions(n_fibres=fibres or None, n_guides=guides, n_segments=segments, length=length,
                                style=demo, density_model=density_model, maps=maps,
-                               density_per_cm2=max_density, seed=seed)
+                               density_per_cm2=max_density, tip_ratio=tip_ratio,
+                               winding=float(np.radians(winding) * 100.0), seed=seed)
         hs = reconstruct(inputs, options, report)
     summary = {"inputs": inputs.description, "density_model": density_model, "timings_s": hs.timings,
                "timings_cpu_s": hs.timings_cpu, "stats": hs.stats, "guide_options": asdict(options.guide),
