@@ -221,15 +221,18 @@ def test_kernel_objective_equals_numpy_reference(fields_short, model):
     dens.calibrate(head_f, hair_f, 100 * 0.07)
     dens.add_strand(pr[0], np.full(N + 1, 0.004), pr[:2])  # some occupied cells next to the guide
     go = GuideOptions()
-    par = objective_parameters(go, dens.mode, K, float(roots.lengths[0]), N, dens.scale)
+    par = objective_parameters(go, dens.mode, K, float(roots.lengths[0]), N, dens.scale, head_f.far, hair_f.far)
     nn = N + 1
     out = [np.empty((nn, 3)), np.empty((nn, 3)), np.empty((nn, 3, 3)), np.empty((nn, 3))]
-    for eta in rng.normal(size=(4, 6)):
-        f = _k.guide_objective(eta, par, R0[0], roots.positions[0], K, pre_d3, pre_kl, w, head_f.values,
+    shift = np.array([0.0, 0.0, 0.0])
+    for k, eta in enumerate(rng.normal(size=(5, 6))):
+        if k == 4:
+            shift = np.array([0.5, 0.0, 0.0])  # a rod off every grid reads the fields' far values
+        f = _k.guide_objective(eta, par, R0[0], roots.positions[0] + shift, K, pre_d3, pre_kl, w, head_f.values,
                                head_f.origin, head_f.spacing, hair_f.values, hair_f.origin, hair_f.spacing,
                                dens.values, dens.origin, dens.spacing, *out)
-        g = reference_objective(eta, R0[0], roots.positions[0], K, float(roots.lengths[0]), N, pre_d3, pre_kl, w,
-                                head_f, hair_f, dens, go)
+        g = reference_objective(eta, R0[0], roots.positions[0] + shift, K, float(roots.lengths[0]), N, pre_d3,
+                                pre_kl, w, head_f, hair_f, dens, go)
         assert f == pytest.approx(g, rel=1e-9, abs=1e-12)
 
 

@@ -22,7 +22,8 @@ def short_runs():
 
     inp = bundled_inputs("short")
     fields = boundary_fields(inp)
-    runs = {model: reconstruct(inp, StyleOptions(n_fibres=6000, n_guides=300, style="short", density_model=model,
+    # 1200 guides: enough strands that they compete for space (at 300 the difference is within seed noise)
+    runs = {model: reconstruct(inp, StyleOptions(n_fibres=12000, n_guides=1200, style="short", density_model=model,
                                                  seed=3), fields=fields)
             for model in ("none", "continuous")}
     return inp, runs
@@ -33,7 +34,7 @@ def test_no_fibre_point_inside_the_head_or_beyond_the_volume(short_runs):
 
     inp, runs = short_runs
     hs = runs["continuous"]
-    assert hs.n_fibres > 0.9 * 6000
+    assert hs.n_fibres > 0.9 * 12000
     pts = hs.nodes[np.random.default_rng(0).choice(len(hs.nodes), 40000, replace=False)]
     head = TriangleBVH(inp.head.vertices, inp.head.triangles).signed_distance(pts)  # exact, > 0 outside
     assert head.min() > -HEAD_TOL
@@ -43,7 +44,8 @@ def test_no_fibre_point_inside_the_head_or_beyond_the_volume(short_runs):
 
 
 def test_density_model_makes_the_occupancy_more_homogeneous(short_runs):
-    """Coefficient of variation of segments per 5 mm cell (the seed's Fig. 5.6 as a number)."""
+    """Coefficient of variation of segments per 5 mm cell (the seed's Fig. 5.6 as a number). Measured over seeds
+    0, 1, 3: 0.92-0.94 without, 0.86-0.87 with the continuous model (spread between seeds ~0.01)."""
     _, runs = short_runs
     cv_none = runs["none"].stats["occupancy_cv"]
     cv_kdm = runs["continuous"].stats["occupancy_cv"]

@@ -21,7 +21,8 @@ P_RHO_TOL, P_RHO_PEN = 8, 9                  # KDM predicted-density tolerance a
 P_FSCALE, P_LSCALE = 10, 11                  # K/L^2 (N) and K/L (N m): eta -> physical tip wrench
 P_DS = 12                                    # segment length, m
 P_RHO_SCALE = 13                             # 1 / mean density expected if all strands were spread evenly
-N_PAR = 14
+P_HEAD_FAR, P_HAIR_FAR = 14, 15              # value of the two fields outside their grids (+far, m)
+N_PAR = 16
 
 
 @njit(cache=True, inline="always")
@@ -121,8 +122,8 @@ def guide_objective(eta, par, R0, r0, K, pre_d3, pre_kl, pre_w,
     eps = par[P_EPS]
     F3 = 0.0
     for j in range(1, nn):
-        dh = _tri(hair, hair_o, hair_h, r[j, 0], r[j, 1], r[j, 2], 1.0)
-        ds_ = -_tri(head, head_o, head_h, r[j, 0], r[j, 1], r[j, 2], 1.0)
+        dh = _tri(hair, hair_o, hair_h, r[j, 0], r[j, 1], r[j, 2], par[P_HAIR_FAR])
+        ds_ = -_tri(head, head_o, head_h, r[j, 0], r[j, 1], r[j, 2], par[P_HEAD_FAR])
         F3 += _boundary_cost(dh, margin, cd, eps) + _boundary_cost(ds_, margin, cd, eps)
     F3 /= N
     # F4 density (eqs. 5.11 / 5.12)
@@ -145,7 +146,10 @@ def guide_objective(eta, par, R0, r0, K, pre_d3, pre_kl, pre_w,
             over = rho - par[P_RHO_TOL]
             F4 += p * p + (par[P_RHO_PEN] * over if over > 0.0 else 0.0)
         F4 /= N
-    return par[P_W1] * F1 + par[P_W2] * F2 + par[P_W3] * F3 + par[P_W4] * F4
+    f = par[P_W1] * F1 + par[P_W2] * F2 + par[P_W3] * F3 + par[P_W4] * F4
+    if not np.isfinite(f):
+        return 1e12  # an overflowing shape: reject, the optimiser backs off
+    return f
 
 
 @njit(cache=True)

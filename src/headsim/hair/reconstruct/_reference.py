@@ -58,7 +58,8 @@ def reference_objective(eta, R0, r0, K, length, n_segments, pre_d3, pre_kl, pre_
     from headsim.hair.fibres import fibre_model
     from headsim.solvers.rods_statics import pai_static
 
-    par = objective_parameters(options, density.mode, K, length, n_segments, density.scale)
+    par = objective_parameters(options, density.mode, K, length, n_segments, density.scale, head_field.far,
+                               hair_field.far)
     N = n_segments
     # the default keratin fibre: its stiffness is growth.rod_stiffness() (pass that K), its root frame
     # straight_frame(d3, d2) = R0 for frames from growth.root_frames
@@ -87,7 +88,8 @@ def reference_objective(eta, R0, r0, K, length, n_segments, pre_d3, pre_kl, pre_
         over = grid.distance(x) * sc - options.rho_tolerance
         F4 = (p * p + options.rho_penalty * np.maximum(over, 0.0)).sum() / N
     w = par[_k.P_W1:_k.P_W4 + 1]
-    return float(w[0] * F1 + w[1] * F2 + w[2] * F3 + w[3] * F4)
+    f = float(w[0] * F1 + w[1] * F2 + w[2] * F3 + w[3] * F4)
+    return f if np.isfinite(f) else 1e12
 
 
 def reference_optimise_guide(R0, r0, K, length, n_segments, pre_d3, pre_kl, pre_w, head_field, hair_field,

@@ -39,7 +39,9 @@ __all__ = ["GuideOptions", "PreGuides", "rod_stiffness", "root_frames", "rod_sha
 class GuideOptions:
     """Weights (w1 direction, w2 similarity, w3 boundary, w4 density; normalised to sum 1, eq. 5.7);
     margin delta m and exit penalty c_d of F3; eps m: width of the smoothed exit step; KDM predicted-density
-    tolerance (in units of the mean density of evenly spread strands) and penalty; eta bounds (dimensionless force, torque); L-BFGS-B iterations
+    tolerance (in units of the mean density of evenly spread strands) and penalty; eta bounds (dimensionless force
+    F L^2/K, torque l L/K: Pai's explicit integration stays accurate for ds kappa < 1/2, i.e. |eta| <~ N/2; also
+    the largest pre-guide force level); L-BFGS-B iterations
     and finite-difference step; depth schedule d_min m and the cap (fraction of the local thickness);
     cut tolerances: distance m and tolerated excursion length m; start: "pre-guide" (L-BFGS-B starts from the
     root-distance-weighted wrench of the 3 nearest pre-guides) or "straight" (eta = 0, the seed's start)."""
@@ -50,7 +52,7 @@ class GuideOptions:
     eps: float = 0.0005
     rho_tolerance: float = 1.5
     rho_penalty: float = 1.0
-    force_bound: float = 40.0
+    force_bound: float = 12.0
     torque_bound: float = 8.0
     max_iterations: int = 20
     fd_step: float = 1e-5
@@ -147,7 +149,7 @@ def grow_preguides(roots: Roots, hair_field, K, n_segments: int, options: GuideO
     dimensionless size F L^2 / K raised over ``force_levels``. Each pre-guide keeps the first level that meets
     the depth condition, else the level with the smallest violation (``fitted`` False)."""
     P = len(roots)
-    levels = np.concatenate([[0.0], np.geomspace(0.05, 12.0, 40)]) if force_levels is None \
+    levels = np.concatenate([[0.0], np.geomspace(0.05, options.force_bound, 40)]) if force_levels is None \
         else np.asarray(force_levels, float)
     R0 = root_frames(roots)
     depth = depth_schedule(roots, hair_field, options)
@@ -175,7 +177,7 @@ def grow_preguides(roots: Roots, hair_field, K, n_segments: int, options: GuideO
 
 
 def objective_parameters(options: GuideOptions, density_mode: int, K, length: float, n_segments: int,
-                         density_scale: float = 1.0) -> np.ndarray:
+                         density_scale: float = 1.0, head_far: float = 1.0, hair_far: float = 1.0) -> np.ndarray:
     """The ``par`` vector of :func:`headsim.hair.reconstruct._kernels.guide_objective`."""
     par = np.zeros(_k.N_PAR)
     par[_k.P_W1:_k.P_W4 + 1] = options.normalised_weights()
@@ -192,6 +194,8 @@ def objective_parameters(options: GuideOptions, density_mode: int, K, length: fl
     par[_k.P_LSCALE] = Km / length
     par[_k.P_DS] = length / n_segments
     par[_k.P_RHO_SCALE] = density_scale
+    par[_k.P_HEAD_FAR] = head_far
+    par[_k.P_HAIR_FAR] = hair_far
     return par
 
 
@@ -202,7 +206,8 @@ def _grid(field_):
 def optimise_guide(R0, r0, K, length: float, n_segments: int, pre_d3, pre_kl, pre_w, head_field, hair_field,
                    density, options: GuideOptions, eta0=None):
     """One main guide (§5.3.3 b). Returns (eta (6,), f, positions (N+1, 3), frames (N+1, 3, 3), evaluations)."""
-    par = objective_parameters(options, density.mode, K, length, n_segments, density.scale)
+    par = objective_parameters(options, density.mode, K, length, n_segments, density.scale, head_field.far,
+                               hair_field.far)
     hv, ho, hh = _grid(head_field)
     sv, so, sh = _grid(hair_field)
     dv, do, dh = density.values, density.origin, density.spacing
