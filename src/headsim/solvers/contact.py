@@ -48,6 +48,7 @@ within ``margin``.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -429,7 +430,8 @@ class QuasiStaticResult:
     positions : (n, 3) m; driver_displacement : (r,) m; contact_forces : (n, 3) N on the deformable
     vertices; contact_pressure : (n,) Pa; reaction_forces : (n, 3) N that the fixed vertices exert
     on the body; driver_forces : (r,) N contact force on each driven part along its axis;
-    newton_iterations : total; contact_updates : outer iterations.
+    newton_iterations : total; contact_updates : outer iterations; timings : CPU s per phase
+    (contact_update = detection and lagged planes; the others as in NewtonResult.timings, summed).
     """
 
     positions: np.ndarray
@@ -440,6 +442,7 @@ class QuasiStaticResult:
     driver_forces: np.ndarray
     newton_iterations: int
     contact_updates: int
+    timings: dict = field(default_factory=dict)
 
 
 def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Sequence[RigidDriver] = (), *,
@@ -510,15 +513,27 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
     newton = NewtonOptions(**{**options.newton.__dict__, "force_tolerance": tol, "max_step": max_step})
     z = np.concatenate([x0.ravel(), u0])
     total_it = 0
-    for c in contacts:
-        c.update(*split(z))
+    timings: dict[str, float] = {}
+    amg_cache: dict = {}  # the AMG hierarchy is reused across the outer contact loop
+
+    def update_contacts():
+        t = time.process_time()
+        changed = [c.update(*split(z)) for c in contacts]
+        timings["contact_update"] = timings.get("contact_update", 0.0) + time.process_time() - t
+        return changed
+
+    update_contacts()
     for outer in range(1, options.max_contact_updates + 1):
         res = minimize_newton(energy, gradient, hessian, z, free, newton, near_null=near_null,
-                              what="quasi-static contact solve")
+                              what="quasi-static contact solve", amg_cache=amg_cache)
         z = res.z
         total_it += res.iterations
-        changed = [c.update(*split(z)) for c in contacts]
-        if not any(changed):
+        for k, v in res.timings.items():
+            if k in ("amg_setup", "cg"):
+                timings[k] = v  # cumulative over the shared preconditioner
+            else:
+                timings[k] = timings.get(k, 0.0) + v
+        if not any(update_contacts()):
             break
     else:
         raise ConvergenceError(f"contact active set still changing after {options.max_contact_updates} updates")
@@ -533,4 +548,4 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
     # reaction at constrained dofs: the support must supply R = dPi/dx there (free dofs have dPi/dx = 0)
     g = gradient(z)[:3 * n].reshape(n, 3)
     reaction = np.where(fixed, g, 0.0)
-    return QuasiStaticResult(x, u, cf, pressure, reaction, -gu_contact, total_it, outer)
+    return QuasiStaticResult(x, u, cf, pressure, reaction, -gu_contact, total_it, outer, timings)
