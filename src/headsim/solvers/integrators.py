@@ -201,7 +201,10 @@ class ImplicitEuler:
     max_jump: float = 0.5
 
     def step(self, model: ElasticModel, state: BodyState, dt: float,
-             terms: Sequence[EnergyTerm] = ()) -> BodyState:
+             terms: Sequence[EnergyTerm] = (), amg_cache: dict | None = None) -> BodyState:
+        """One step; ``amg_cache``: a dict kept by the caller to reuse the AMG hierarchy across steps
+        (it is always reused across the contact updates of one step). Contact terms with friction are
+        anchored at the start of the step (the slip of a step is the tangential motion during it)."""
         if not dt > 0:
             raise ParameterError(f"dt must be > 0 s, got {dt}")
         x0 = state.positions
@@ -212,7 +215,10 @@ class ImplicitEuler:
         free = np.repeat(~np.asarray(model.fixed), 3)
         no_u = np.zeros(0)  # contact terms take driver unknowns; dynamics has none
         for t in terms:
+            if hasattr(t, "start"):
+                t.start(x0, no_u)
             t.update(x0, no_u)
+        cache = {} if amg_cache is None else amg_cache
 
         def energy(z):
             x = z.reshape(n, 3)
@@ -247,7 +253,7 @@ class ImplicitEuler:
             try:
                 res = minimize_newton(energy, gradient, hessian, z, free, newton,
                                       near_null=lambda zz: rigid_body_modes(zz.reshape(n, 3)),
-                                      what=f"implicit Euler step {state.step + 1}")
+                                      what=f"implicit Euler step {state.step + 1}", amg_cache=cache)
             except ConvergenceError as e:
                 raise DivergenceError(f"{e}; likely cause: dt = {dt:g} s too large for the contact "
                                       "stiffness or an inverted element") from e

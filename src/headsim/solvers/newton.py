@@ -4,6 +4,21 @@ Used by the implicit Euler and quasi-static solvers. The linear solve is either 
 (SciPy SuperLU) or conjugate gradients preconditioned by smoothed-aggregation algebraic multigrid
 (pyamg) with the rigid-body modes as near-null space; ``"auto"`` picks AMG-CG above
 ``amg_threshold`` unknowns (``benchmarks/bench_solver.py`` measures the two).
+
+What makes it fast (profiled on the two-20k-tet-body benchmark; CPU s per phase in
+``NewtonResult.timings``):
+
+- BLAS is held to one thread inside the solve (threadpoolctl): the level-1 BLAS calls of CG and of
+  pyamg's set-up are too short to gain from threads, and OpenBLAS's spinning threads made them 4x
+  slower on a loaded 2-core machine;
+- the AMG hierarchy is built once and reused for the later Newton iterations (and, through
+  ``amg_cache``, across the outer contact loop), rebuilt only when CG with it needs more than
+  ``amg_rebuild_iterations``; the V-cycle is applied directly, without pyamg's per-call residuals;
+- inexact Newton: the CG tolerance follows Eisenstat & Walker (1996), choice 2;
+- the free-dof block of the Hessian is cut with an index map kept while the sparsity pattern stays
+  the same, and the regularisation is added on its diagonal in place;
+- (in :mod:`headsim.solvers.fem`) element Hessians are projected through the analytic eigensystem
+  of the stable neo-Hookean energy and scattered into a fixed CSR pattern by a Numba kernel.
 """
 
 from __future__ import annotations
