@@ -43,7 +43,11 @@ class NewtonOptions:
     relative_tolerance : converged when |g|_inf <= relative_tolerance * |g0|_inf
     max_iterations : Newton iterations before ConvergenceError
     linear_solver : "auto", "direct" (SuperLU) or "amg-cg" (pyamg smoothed aggregation + CG)
-    amg_threshold : unknowns above which "auto" uses AMG-CG
+    amg_threshold : unknowns above which "auto" uses AMG-CG (measured crossover: at 6.9k unknowns
+        AMG-CG is 2.5x faster than SuperLU on the FEM Hessian, at 43k 16x; bench_solver.py)
+    amg_threshold_exact : the same when ``try_exact_hessian`` is set (the exact, possibly indefinite
+        Hessian needs a factorisation, and the mask fit measured 18 Newton iterations with it against
+        73 with the projected Hessian and AMG-CG, so "auto" keeps the direct solver longer there)
     cg_rtol : largest relative residual of the inner CG solve (the Eisenstat-Walker forcing term,
         choice 2, tightens it as the Newton residual falls)
     amg_rebuild_iterations : CG iterations with a reused AMG hierarchy above which it is rebuilt
@@ -60,7 +64,8 @@ class NewtonOptions:
     relative_tolerance: float = 1e-8
     max_iterations: int = 100
     linear_solver: str = "auto"
-    amg_threshold: int = 20_000
+    amg_threshold: int = 5_000
+    amg_threshold_exact: int = 20_000
     cg_rtol: float = 1e-2
     regularization: float = 1e-10
     max_line_search: int = 40
@@ -341,7 +346,8 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
     idx = np.flatnonzero(free)
     method = options.linear_solver
     if method == "auto":
-        method = "amg-cg" if len(idx) > options.amg_threshold else "direct"
+        limit = options.amg_threshold_exact if options.try_exact_hessian else options.amg_threshold
+        method = "amg-cg" if len(idx) > limit else "direct"
     with timer("energy"):
         e = energy(z)
     if not np.isfinite(e):
