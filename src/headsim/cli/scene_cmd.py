@@ -71,8 +71,8 @@ def run_cmd(
                 f"contact force {res.contact_force:.6g} N, support reaction {res.support_reaction:.6g} N\n"
                 f"mesh: quarter block, {res.n_vertices} vertices, {res.n_tets} tets; Newton iterations "
                 f"{res.newton_iterations}\n")
-            con.print(f"contact radius {res.contact_radius * 1e3:.4g} mm (Hertz {res.contact_radius_hertz * 1e3:.4g}), "
-                      f"indentation {res.indentation * 1e6:.4g} µm (Hertz {res.indentation_hertz * 1e6:.4g})")
+            con.print(f"contact radius {res.contact_radius * 1e3:.4g} mm (Hertz {res.contact_radius_hertz * 1e3:.4f} mm), "
+                      f"indentation {res.indentation * 1e6:.4g} µm (Hertz {res.indentation_hertz * 1e6:.2f} µm)")
         else:
             import numpy as np
 
