@@ -93,6 +93,9 @@ def test_cli_unknown_scene_fails_cleanly_without_output(tmp_path):
     with pytest.raises(SystemExit) as e:
         main(["scene", "run", "seed-sphere-on-cuboid", "--out", str(out), "--scenario", "squishy"])
     assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:
+        main(["scene", "run", "seed-sphere-on-cuboid", "--out", str(out), "--scene-radius", "-1"])
+    assert e.value.code == 2
     assert not out.exists() and not any(tmp_path.iterdir())
 
 

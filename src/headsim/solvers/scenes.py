@@ -137,6 +137,9 @@ def seed_sphere_on_cuboid(scenario: str = "both-rigid", steps: int = 10, dt: flo
     """
     if scenario not in SEED_SCENARIOS:
         raise ParameterError(f"unknown scenario {scenario!r}; use one of {', '.join(SEED_SCENARIOS)}")
+    if not (np.isfinite(radius) and radius > 0) or sphere_divisions < 1 or min(cuboid_divisions) < 1:
+        raise ParameterError(f"need radius > 0 m and divisions >= 1, got radius {radius}, sphere divisions "
+                             f"{sphere_divisions}, cuboid divisions {tuple(cuboid_divisions)}")
     if integrator not in ("substepped", "explicit"):
         raise ParameterError(f"integrator must be 'substepped' or 'explicit', got {integrator!r}")
     ks, kc = SEED_SCENARIOS[scenario]
