@@ -102,14 +102,14 @@ def explicit_seed_loop(ms_model, surfaces, n_steps, k_coll, supported):
     return per_step, dt, steps_needed, steps_needed * per_step, steps_needed * per_step_cpu
 
 
-def bench_sphere_on_block(quick: bool):
+def bench_sphere_on_block(quick: bool, solvers=("direct", "amg-cg")):
     from headsim.solvers.hertz import hertz_indentation
 
     print("\n== sphere-on-block (rigid sphere on soft block, quarter model) ==")
     kw = dict(first_cell=1e-3 / (4 if quick else 6), growth=1.25 if quick else 1.2)
     rows = {}
     hertz_indentation(MAT, 0.01, 0.001, first_cell=1e-3 / 2, growth=1.5)  # warm-up (Numba cache, pyamg)
-    for solver in ("direct", "amg-cg"):
+    for solver in solvers:
         res, c = _timed(hertz_indentation, MAT, 0.01, 0.001, linear_solver=solver, **kw)
         rows[solver] = c
         print(f"quasi-static Newton [{solver:6s}]: {c.wall:7.2f} s wall / {c.cpu:6.2f} s CPU to equilibrium "
@@ -149,7 +149,7 @@ def two_body_meshes(quick: bool):
     return ball, block
 
 
-def bench_two_bodies(quick: bool):
+def bench_two_bodies(quick: bool, solvers=("direct", "amg-cg")):
     print("\n== two deformable bodies (ball on block) ==")
     ball, block = two_body_meshes(quick)
     n0 = block.n_vertices
@@ -170,7 +170,7 @@ def bench_two_bodies(quick: bool):
     blk_s = np.flatnonzero(a_block > 0)
     ball_s = np.flatnonzero(a_ball > 0)
     rows = {}
-    for solver in ("direct", "amg-cg"):
+    for solver in solvers:
         contacts = [
             PlaneContact(ball_s, a_ball[ball_s], block.boundary_triangles, kappa, slave_edges=both.edges, margin=1e-4),
             PlaneContact(blk_s, a_block[blk_s], ball.boundary_triangles + n0, kappa, slave_edges=both.edges, margin=1e-4),
@@ -250,10 +250,13 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="small sizes (a minute)")
     ap.add_argument("--skip-linear", action="store_true", help="skip the direct vs AMG linear-solver table")
+    ap.add_argument("--skip-direct", action="store_true",
+                    help="quasi-static solves with AMG-CG only (SuperLU takes minutes at full size)")
     args = ap.parse_args()
     print(f"{os.cpu_count()} CPUs, {_load()} at start")
-    r1 = bench_sphere_on_block(args.quick)
-    r2 = bench_two_bodies(args.quick)
+    solvers = ("amg-cg",) if args.skip_direct else ("direct", "amg-cg")
+    r1 = bench_sphere_on_block(args.quick, solvers)
+    r2 = bench_two_bodies(args.quick, solvers)
     if not args.skip_linear:
         bench_linear_solvers(args.quick)
     print(f"\nsummary: quasi-static is {r1[0]:.3g} x wall / {r1[1]:.3g} x CPU (sphere-on-block) and {r2[0]:.3g} x wall / "

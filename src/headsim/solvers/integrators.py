@@ -106,26 +106,29 @@ def check_divergence(model: ElasticModel, old: BodyState, new_positions: np.ndar
     """
     step = old.step + 1
     where = f"step {step} (t = {old.time + dt:.4g} s, dt = {dt:g} s)"
-    try:
-        dt_crit = critical_time_step(model)
-    except Exception:  # noqa: BLE001 - the estimate only decorates the message
-        dt_crit = float("nan")
-    hint = (f"; the explicit stability limit of this model is about dt < {dt_crit:.3g} s: reduce dt, soften "
-            "the springs, or use ImplicitEuler / solve_quasi_static")
+
+    def hint() -> str:  # only when raising: the estimate assembles the stiffness matrix
+        try:
+            dt_crit = critical_time_step(model)
+        except Exception:  # noqa: BLE001 - the estimate only decorates the message
+            dt_crit = float("nan")
+        return (f"; the explicit stability limit of this model is about dt < {dt_crit:.3g} s: reduce dt, soften "
+                "the springs, or use ImplicitEuler / solve_quasi_static")
+
     if not (np.isfinite(new_positions).all() and np.isfinite(new_velocities).all()):
-        raise DivergenceError(f"non-finite positions or velocities at {where}{hint}")
+        raise DivergenceError(f"non-finite positions or velocities at {where}{hint()}")
     jump = float(np.max(np.linalg.norm(new_positions - old.positions, axis=1)))
     size = _body_size(model)
     if jump > max_jump * size:
         raise DivergenceError(f"energy blow-up at {where}: a point moved {jump:.3g} m in one step "
-                              f"(body size {size:.3g} m){hint}")
+                              f"(body size {size:.3g} m){hint()}")
     speed = float(np.max(np.linalg.norm(new_velocities, axis=1)))
     if speed * dt > max_jump * size:
         raise DivergenceError(f"energy blow-up at {where}: speed {speed:.3g} m/s would carry a point "
-                              f"{speed * dt:.3g} m in one step (body size {size:.3g} m){hint}")
+                              f"{speed * dt:.3g} m in one step (body size {size:.3g} m){hint()}")
     reason = model.check_state(new_positions)
     if reason is not None:
-        raise DivergenceError(f"{reason} at {where}{hint}")
+        raise DivergenceError(f"{reason} at {where}{hint()}")
 
 
 @dataclass(frozen=True)
