@@ -39,6 +39,9 @@ def run_cmd(
     contact_radius_mm: float = typer.Option(1.0, help="sphere-on-block: Hertz contact radius to load for, mm"),
     scenario: str = typer.Option("rigid-on-soft", help="seed scene: both-rigid, rigid-on-soft or both-soft"),
     steps: int = typer.Option(10, min=1, help="seed scene: number of 0.2 s steps"),
+    scene_radius: float = typer.Option(0.5, help="seed scene: sphere radius R, m (the thesis gives none; the "
+                                                 "k = 5 N/m sphere is rigid only at several metres, e.g. 5)"),
+    sphere_divisions: int = typer.Option(2, min=1, help="seed scene: ball mesh divisions (2d + 1 points across)"),
 ) -> None:
     """Run scene NAME and write PNG pictures and a VTU deformation file into OUT."""
     from rich.console import Console
@@ -71,8 +74,8 @@ def run_cmd(
                 f"contact force {res.contact_force:.6g} N, support reaction {res.support_reaction:.6g} N\n"
                 f"mesh: quarter block, {res.n_vertices} vertices, {res.n_tets} tets; Newton iterations "
                 f"{res.newton_iterations}\n")
-            con.print(f"contact radius {res.contact_radius * 1e3:.4g} mm (Hertz {res.contact_radius_hertz * 1e3:.4g}), "
-                      f"indentation {res.indentation * 1e6:.4g} µm (Hertz {res.indentation_hertz * 1e6:.4g})")
+            con.print(f"contact radius {res.contact_radius * 1e3:.4g} mm (Hertz {res.contact_radius_hertz * 1e3:.4f} mm), "
+                      f"indentation {res.indentation * 1e6:.4g} µm (Hertz {res.indentation_hertz * 1e6:.2f} µm)")
         else:
             import numpy as np
 
@@ -81,7 +84,8 @@ def run_cmd(
 
             with Progress(transient=True) as prog:
                 task = prog.add_task(f"seed scene {scenario}", total=steps)
-                res = seed_sphere_on_cuboid(scenario, steps=steps, progress=lambda i: prog.update(task, completed=i))
+                res = seed_sphere_on_cuboid(scenario, steps=steps, radius=scene_radius, sphere_divisions=sphere_divisions,
+                                            progress=lambda i: prog.update(task, completed=i))
             tets = np.vstack(res.tets)
             for k in sorted({0, steps // 2, steps}):
                 write_vtu(tmp / f"sphere_on_cuboid_step{k:03d}.vtu", res.model.rest_positions, res.states[k].positions,

@@ -39,7 +39,8 @@ cushion glued to the shell with :class:`DriverAttachment` (or a ``PlaneContact``
 rigid master). Warm-start a sweep over strap forces with the previous ``positions`` and
 ``driver_displacement``; the contact planes live in the ``PlaneContact`` objects, so reuse them too.
 
-Limitations: frictionless; contact planes are lagged (kept from first detection unless
+Limitations: frictionless unless ``PlaneContact(friction=mu, friction_slip=eps)`` (lagged Coulomb);
+contact planes are lagged (kept from first detection unless
 ``refresh_planes``), which suits small sliding; slaves must be deformable vertices (a rigid part
 touches the deformable body through ``PlaneContact`` with the rigid surface as master); a body that
 is not constrained and not yet in contact makes Newton's system singular -- start in contact or
@@ -48,6 +49,7 @@ within ``margin``.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -98,6 +100,9 @@ class ContactTerm:
 
     def update(self, x: np.ndarray, u: np.ndarray) -> bool:
         return False
+
+    def start(self, x: np.ndarray, u: np.ndarray) -> None:
+        """Called once at the start of every :func:`solve_quasi_static` (before the first update)."""
 
 
 @dataclass(eq=False)
@@ -250,6 +255,24 @@ class PlaneContact(ContactTerm):
         keeps the plane of its first detection, computed at the smallest penetration, where the
         consistent direction is best defined; new contacts get fresh planes). Refreshing suits large
         sliding; keeping makes the outer loop converge (it stops when the active set is stable).
+    friction : Coulomb coefficient mu (0: frictionless, the default)
+    friction_slip : m, the tangential slip eps below which a contact sticks elastically (needed when
+        friction > 0; choose well below the displacements of interest, e.g. 1e-3 x the element size)
+    friction_tolerance : relative change of the lagged normal forces that triggers another outer
+        iteration of :func:`solve_quasi_static`
+
+    Friction (lagged Coulomb, the quasi-static form of the lagged friction potential of Incremental
+    Potential Contact, Li et al. 2020, sec. 5): each active contact c keeps the normal force
+    lambda_c = kappa a_c max(0, -g_c) of the last update and an anchor, its relative position
+    x_a - q_c at the start of the solve (or at its first detection). With the tangential slip
+    s_c = (I - r_c r_c^T) ((x_a - q_c) - anchor_c) the energy gets
+    sum mu lambda_c f0(|s_c|), f0(y) = y^2 / (2 eps) for y < eps and y - eps / 2 above: a stick
+    spring of stiffness mu lambda_c / eps up to the Coulomb limit, then a constant force mu lambda_c
+    opposing the slip. Its Hessian is PSD (mu lambda / eps P, or mu lambda / y (P - s s^T / y^2)).
+    The outer loop of :func:`solve_quasi_static` refreshes lambda_c until it changes by less than
+    ``friction_tolerance`` (a fixed point in the normal forces), so at equilibrium |f_T| <= mu lambda
+    holds with the converged normal forces. Anchors are reset at the start of every solve: a
+    sequence of warm-started solves is a sequence of load increments.
     """
 
     slave_vertices: np.ndarray
@@ -263,13 +286,22 @@ class PlaneContact(ContactTerm):
     axis: np.ndarray | None = None
     margin: float = 0.0
     refresh_planes: bool = False
+    friction: float = 0.0
+    friction_slip: float | None = None
+    friction_tolerance: float = 1e-3
     # lagged contact data
     active: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))      # (c,) index into slave_vertices
     tri_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     weights: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    normal_force: np.ndarray = field(default_factory=lambda: np.zeros(0))      # (c,) N, lagged lambda_c
+    anchor: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))       # (c, 3) m
 
     def __post_init__(self):
+        if self.friction < 0 or not np.isfinite(self.friction):
+            raise ParameterError(f"friction coefficient must be >= 0, got {self.friction}")
+        if self.friction > 0 and (self.friction_slip is None or not self.friction_slip > 0):
+            raise ParameterError("friction > 0 needs friction_slip > 0 (m): the slip below which contacts stick")
         if self.direction not in ("consistent", "naive"):
             raise ParameterError(f"direction must be 'consistent' or 'naive', got {self.direction!r}")
         if self.direction == "consistent" and self.slave_edges is None:
@@ -297,7 +329,88 @@ class PlaneContact(ContactTerm):
         if len(self.active) == 0:
             return 0.0
         d = np.maximum(-self._gaps(x, u), 0.0)
-        return 0.5 * self.penalty * float(np.sum(self.slave_areas[self.active] * d * d))
+        e = 0.5 * self.penalty * float(np.sum(self.slave_areas[self.active] * d * d))
+        if self._has_friction:
+            y = np.linalg.norm(self._slip(x, u), axis=1)
+            eps = self.friction_slip
+            f0 = np.where(y < eps, 0.5 * y * y / eps, y - 0.5 * eps)
+            e += self.friction * float(np.sum(self.normal_force * f0))
+        return e
+
+    # -- lagged Coulomb friction ----------------------------------------------------------------------
+    @property
+    def _has_friction(self) -> bool:
+        return self.friction > 0 and len(self.active) > 0 and len(self.normal_force) == len(self.active)
+
+    def _relative(self, x, u):
+        """(c, 3) m: x_a - q_c."""
+        y = self._master_positions(x, u)
+        q = np.einsum("cb,cbk->ck", self.weights, y[self.tri_vertices])
+        return x[self.slave_vertices[self.active]] - q
+
+    def _slip(self, x, u):
+        """(c, 3) m: tangential slip (I - r r^T) ((x_a - q_c) - anchor_c)."""
+        s = self._relative(x, u) - self.anchor
+        return s - np.einsum("ck,ck->c", s, self.normals)[:, None] * self.normals
+
+    def _relative_jacobian(self, x, u):
+        """Dof columns (c, K) and d(x_a - q_c)/dz as (c, 3, K)."""
+        nc = len(self.active)
+        eye = np.broadcast_to(np.eye(3), (nc, 3, 3))
+        cols = [3 * self.slave_vertices[self.active][:, None] + np.arange(3)]
+        jac = [eye]
+        if self.rigid_vertices is None:
+            for b in range(3):
+                cols.append(3 * self.tri_vertices[:, b][:, None] + np.arange(3))
+                jac.append(-self.weights[:, b][:, None, None] * eye)
+        elif self.driver is not None:
+            cols.append(np.full((nc, 1), 3 * len(x) + self.driver))
+            jac.append(np.broadcast_to(-np.asarray(self.axis)[None, :, None], (nc, 3, 1)))
+        return np.concatenate(cols, axis=1), np.concatenate(jac, axis=2)
+
+    def _friction_derivatives(self, x, u):
+        """dE_f/d(relative) (c, 3) and its PSD Hessian (c, 3, 3)."""
+        s = self._slip(x, u)
+        y = np.linalg.norm(s, axis=1)
+        eps = self.friction_slip
+        ml = self.friction * self.normal_force
+        stick = y < eps
+        r = self.normals
+        proj = np.eye(3)[None] - r[:, :, None] * r[:, None, :]
+        g = np.where(stick[:, None], (ml / eps)[:, None] * s, ml[:, None] * s / np.maximum(y, 1e-300)[:, None])
+        shat = s / np.maximum(y, 1e-300)[:, None]
+        h_slide = (ml / np.maximum(y, 1e-300))[:, None, None] * (proj - shat[:, :, None] * shat[:, None, :])
+        h = np.where(stick[:, None, None], (ml / eps)[:, None, None] * proj, h_slide)
+        return g, h
+
+    def _friction_gradient(self, x, u, flat):
+        g, _ = self._friction_derivatives(x, u)
+        cols, jac = self._relative_jacobian(x, u)
+        np.add.at(flat, cols.ravel(), np.einsum("cik,ci->ck", jac, g).ravel())
+
+    def _friction_hessian(self, x, u, n_dof):
+        _, h = self._friction_derivatives(x, u)
+        cols, jac = self._relative_jacobian(x, u)
+        k = cols.shape[1]
+        data = np.einsum("cip,cij,cjq->cpq", jac, h, jac)
+        rows = np.repeat(cols, k, axis=1).ravel()
+        cc = np.tile(cols, (1, k)).ravel()
+        return sp.csr_matrix((data.ravel(), (rows, cc)), shape=(n_dof, n_dof))
+
+    def friction_forces(self, x, u) -> np.ndarray:
+        """(n, 3) N: the friction part of :meth:`vertex_forces` on the slave vertices (tangential)."""
+        out = np.zeros_like(x)
+        if self._has_friction:
+            g, _ = self._friction_derivatives(x, u)
+            np.add.at(out, self.slave_vertices[self.active], -g)
+        return out
+
+    def start(self, x, u) -> None:
+        """Anchor the friction of the current contacts at the current positions (a new load increment)."""
+        if self.friction > 0 and len(self.active):
+            self.anchor = self._relative(x, u)
+            if len(self.normal_force) != len(self.active):
+                self.normal_force = self.penalty * self.slave_areas[self.active] * np.maximum(-self._gaps(x, u), 0.0)
 
     def _jacobian(self, x, u):
         """Columns (c, k) and values (c, k) of dg_c/dz (z = [x.ravel(), u])."""
@@ -324,6 +437,8 @@ class PlaneContact(ContactTerm):
         cols, vals = self._jacobian(x, u)
         flat = np.zeros(3 * len(x) + len(u))
         np.add.at(flat, cols.ravel(), (s[:, None] * vals).ravel())
+        if self._has_friction:
+            self._friction_gradient(x, u, flat)
         return flat[:3 * len(x)].reshape(-1, 3), flat[3 * len(x):]
 
     def hessian(self, x, u):
@@ -337,10 +452,13 @@ class PlaneContact(ContactTerm):
         rows = np.repeat(cols, k, axis=1).ravel()
         cc = np.tile(cols, (1, k)).ravel()
         data = (w[:, None, None] * vals[:, :, None] * vals[:, None, :]).ravel()
-        return sp.csr_matrix((data, (rows, cc)), shape=(n_dof, n_dof))
+        h = sp.csr_matrix((data, (rows, cc)), shape=(n_dof, n_dof))
+        if self._has_friction:
+            h = h + self._friction_hessian(x, u, n_dof)
+        return h
 
     def vertex_forces(self, x, u):
-        """(n, 3) N contact force on every deformable vertex (slaves and deformable masters)."""
+        """(n, 3) N contact force on every deformable vertex (slaves and deformable masters), friction included."""
         gx, _ = self.gradient(x, u)
         return -gx
 
@@ -404,7 +522,24 @@ class PlaneContact(ContactTerm):
         ok &= np.linalg.norm(nrm, axis=1) > 0
         new_active = np.flatnonzero(ok)
         changed = set(new_active.tolist()) != set(old_pos)
+        old_force = dict(zip(old_active.tolist(), self.normal_force.tolist())) \
+            if len(self.normal_force) == len(old_active) else {}
+        old_anchor = dict(zip(old_active.tolist(), self.anchor)) if len(self.anchor) == len(old_active) else {}
         self.active, self.tri_vertices, self.weights, self.normals = new_active, tri[ok], wts[ok], nrm[ok]
+        if self.friction > 0:
+            rel = self._relative(x, u)
+            self.anchor = np.array([old_anchor[a] if a in old_anchor else rel[i]
+                                    for i, a in enumerate(new_active.tolist())]).reshape(-1, 3)
+            lam = self.penalty * self.slave_areas[new_active] * np.maximum(-self._gaps(x, u), 0.0)
+            before = np.array([old_force.get(a, 0.0) for a in new_active.tolist()])
+            if len(lam) and np.max(np.abs(lam - before)) > self.friction_tolerance * max(float(lam.max()), 1e-300):
+                changed = True
+            if changed:
+                self.normal_force = lam
+            else:
+                # converged fixed point: keep the lambda the last solve used, so that the returned
+                # state is an exact equilibrium of the energy it reports
+                self.normal_force = before
         return changed
 
 
@@ -429,7 +564,8 @@ class QuasiStaticResult:
     positions : (n, 3) m; driver_displacement : (r,) m; contact_forces : (n, 3) N on the deformable
     vertices; contact_pressure : (n,) Pa; reaction_forces : (n, 3) N that the fixed vertices exert
     on the body; driver_forces : (r,) N contact force on each driven part along its axis;
-    newton_iterations : total; contact_updates : outer iterations.
+    newton_iterations : total; contact_updates : outer iterations; timings : CPU s per phase
+    (contact_update = detection and lagged planes; the others as in NewtonResult.timings, summed).
     """
 
     positions: np.ndarray
@@ -440,6 +576,7 @@ class QuasiStaticResult:
     driver_forces: np.ndarray
     newton_iterations: int
     contact_updates: int
+    timings: dict = field(default_factory=dict)
 
 
 def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Sequence[RigidDriver] = (), *,
@@ -510,15 +647,30 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
     newton = NewtonOptions(**{**options.newton.__dict__, "force_tolerance": tol, "max_step": max_step})
     z = np.concatenate([x0.ravel(), u0])
     total_it = 0
+    timings: dict[str, float] = {}
+    amg_cache: dict = {}  # the AMG hierarchy is reused across the outer contact loop
+
+    def update_contacts():
+        t = time.process_time()
+        changed = [c.update(*split(z)) for c in contacts]
+        timings["contact_update"] = timings.get("contact_update", 0.0) + time.process_time() - t
+        return changed
+
     for c in contacts:
-        c.update(*split(z))
+        if hasattr(c, "start"):  # duck-typed terms (e.g. the mask's shell attachment) may lack it
+            c.start(*split(z))
+    update_contacts()
     for outer in range(1, options.max_contact_updates + 1):
         res = minimize_newton(energy, gradient, hessian, z, free, newton, near_null=near_null,
-                              what="quasi-static contact solve")
+                              what="quasi-static contact solve", amg_cache=amg_cache)
         z = res.z
         total_it += res.iterations
-        changed = [c.update(*split(z)) for c in contacts]
-        if not any(changed):
+        for k, v in res.timings.items():
+            if k in ("amg_setup", "cg"):
+                timings[k] = v  # cumulative over the shared preconditioner
+            else:
+                timings[k] = timings.get(k, 0.0) + v
+        if not any(update_contacts()):
             break
     else:
         raise ConvergenceError(f"contact active set still changing after {options.max_contact_updates} updates")
@@ -533,4 +685,4 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
     # reaction at constrained dofs: the support must supply R = dPi/dx there (free dofs have dPi/dx = 0)
     g = gradient(z)[:3 * n].reshape(n, 3)
     reaction = np.where(fixed, g, 0.0)
-    return QuasiStaticResult(x, u, cf, pressure, reaction, -gu_contact, total_it, outer)
+    return QuasiStaticResult(x, u, cf, pressure, reaction, -gu_contact, total_it, outer, timings)

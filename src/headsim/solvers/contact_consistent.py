@@ -15,6 +15,13 @@ Direction r and depth d of each colliding vertex:
   Points not reachable from any border point fall back to the naive direction. We normalise r after
   each weighted mean (the seed uses it as a direction).
 
+  Variant 2 (one traversal per "collision group", §3.4.2, figs. 3.2-3.4) is not implemented: the
+  thesis does not define how the groups are found (they are not the connected components of the
+  colliding points -- a traversal never leaves its component, so per-component traversals would equal
+  variant 1 -- but adjacent regions, e.g. points 0, 1, 3 vs point 2 in fig. 3.4), and it rules the
+  variant out itself: several traversals can reintroduce the fig. 3.1 failure ("schließt sich der
+  mehrfache Breitendurchlauf komplett aus").
+
 Force (eq. 3.8 with 3.7): F = k_coll d r + c_coll ((v_body - v_point) . r) r, v_body the mean velocity of
 the other body; r points out of the other body, so the force pushes the point out. The seed's eq. 3.8
 writes both terms with a minus sign for the opposite orientation of r and d.

@@ -12,7 +12,7 @@ loaded node instead of the (mesh-size-quantised) outermost one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +41,7 @@ class HertzResult:
     model: FemModel
     positions: np.ndarray
     contact_pressure: np.ndarray
+    timings: dict = field(default_factory=dict)  # CPU s per phase of the quasi-static solve
 
     @property
     def contact_radius_error(self) -> float:
@@ -103,5 +104,5 @@ def hertz_indentation(material: Material = Material.from_kpa(10.0, 0.3), radius:
         indentation=float(res.driver_displacement[0]), indentation_hertz=a**2 / radius,
         contact_force=float(4.0 * np.sum(load)), support_reaction=float(4.0 * np.sum(res.reaction_forces[fixed, 2])),
         n_vertices=len(x), n_tets=mesh.n_tets, newton_iterations=res.newton_iterations, model=model,
-        positions=res.positions, contact_pressure=res.contact_pressure,
+        positions=res.positions, contact_pressure=res.contact_pressure, timings=res.timings,
     )

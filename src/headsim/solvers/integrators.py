@@ -106,26 +106,29 @@ def check_divergence(model: ElasticModel, old: BodyState, new_positions: np.ndar
     """
     step = old.step + 1
     where = f"step {step} (t = {old.time + dt:.4g} s, dt = {dt:g} s)"
-    try:
-        dt_crit = critical_time_step(model)
-    except Exception:  # noqa: BLE001 - the estimate only decorates the message
-        dt_crit = float("nan")
-    hint = (f"; the explicit stability limit of this model is about dt < {dt_crit:.3g} s: reduce dt, soften "
-            "the springs, or use ImplicitEuler / solve_quasi_static")
+
+    def hint() -> str:  # only when raising: the estimate assembles the stiffness matrix
+        try:
+            dt_crit = critical_time_step(model)
+        except Exception:  # noqa: BLE001 - the estimate only decorates the message
+            dt_crit = float("nan")
+        return (f"; the explicit stability limit of this model is about dt < {dt_crit:.3g} s: reduce dt, soften "
+                "the springs, or use ImplicitEuler / solve_quasi_static")
+
     if not (np.isfinite(new_positions).all() and np.isfinite(new_velocities).all()):
-        raise DivergenceError(f"non-finite positions or velocities at {where}{hint}")
+        raise DivergenceError(f"non-finite positions or velocities at {where}{hint()}")
     jump = float(np.max(np.linalg.norm(new_positions - old.positions, axis=1)))
     size = _body_size(model)
     if jump > max_jump * size:
         raise DivergenceError(f"energy blow-up at {where}: a point moved {jump:.3g} m in one step "
-                              f"(body size {size:.3g} m){hint}")
+                              f"(body size {size:.3g} m){hint()}")
     speed = float(np.max(np.linalg.norm(new_velocities, axis=1)))
     if speed * dt > max_jump * size:
         raise DivergenceError(f"energy blow-up at {where}: speed {speed:.3g} m/s would carry a point "
-                              f"{speed * dt:.3g} m in one step (body size {size:.3g} m){hint}")
+                              f"{speed * dt:.3g} m in one step (body size {size:.3g} m){hint()}")
     reason = model.check_state(new_positions)
     if reason is not None:
-        raise DivergenceError(f"{reason} at {where}{hint}")
+        raise DivergenceError(f"{reason} at {where}{hint()}")
 
 
 @dataclass(frozen=True)
@@ -201,7 +204,10 @@ class ImplicitEuler:
     max_jump: float = 0.5
 
     def step(self, model: ElasticModel, state: BodyState, dt: float,
-             terms: Sequence[EnergyTerm] = ()) -> BodyState:
+             terms: Sequence[EnergyTerm] = (), amg_cache: dict | None = None) -> BodyState:
+        """One step; ``amg_cache``: a dict kept by the caller to reuse the AMG hierarchy across steps
+        (it is always reused across the contact updates of one step). Contact terms with friction are
+        anchored at the start of the step (the slip of a step is the tangential motion during it)."""
         if not dt > 0:
             raise ParameterError(f"dt must be > 0 s, got {dt}")
         x0 = state.positions
@@ -212,7 +218,10 @@ class ImplicitEuler:
         free = np.repeat(~np.asarray(model.fixed), 3)
         no_u = np.zeros(0)  # contact terms take driver unknowns; dynamics has none
         for t in terms:
+            if hasattr(t, "start"):
+                t.start(x0, no_u)
             t.update(x0, no_u)
+        cache = {} if amg_cache is None else amg_cache
 
         def energy(z):
             x = z.reshape(n, 3)
@@ -247,7 +256,7 @@ class ImplicitEuler:
             try:
                 res = minimize_newton(energy, gradient, hessian, z, free, newton,
                                       near_null=lambda zz: rigid_body_modes(zz.reshape(n, 3)),
-                                      what=f"implicit Euler step {state.step + 1}")
+                                      what=f"implicit Euler step {state.step + 1}", amg_cache=cache)
             except ConvergenceError as e:
                 raise DivergenceError(f"{e}; likely cause: dt = {dt:g} s too large for the contact "
                                       "stiffness or an inverted element") from e

@@ -4,11 +4,28 @@ Used by the implicit Euler and quasi-static solvers. The linear solve is either 
 (SciPy SuperLU) or conjugate gradients preconditioned by smoothed-aggregation algebraic multigrid
 (pyamg) with the rigid-body modes as near-null space; ``"auto"`` picks AMG-CG above
 ``amg_threshold`` unknowns (``benchmarks/bench_solver.py`` measures the two).
+
+What makes it fast (profiled on the two-20k-tet-body benchmark; CPU s per phase in
+``NewtonResult.timings``):
+
+- BLAS is held to one thread inside the solve (threadpoolctl): the level-1 BLAS calls of CG and of
+  pyamg's set-up are too short to gain from threads, and OpenBLAS's spinning threads made them 4x
+  slower on a loaded 2-core machine;
+- the AMG hierarchy is built once and reused for the later Newton iterations (and, through
+  ``amg_cache``, across the outer contact loop), rebuilt only when CG with it needs more than
+  ``amg_rebuild_iterations``; the V-cycle is applied directly, without pyamg's per-call residuals;
+- inexact Newton: the CG tolerance follows Eisenstat & Walker (1996), choice 2;
+- the free-dof block of the Hessian is cut with an index map kept while the sparsity pattern stays
+  the same, and the regularisation is added on its diagonal in place;
+- (in :mod:`headsim.solvers.fem`) element Hessians are projected through the analytic eigensystem
+  of the stable neo-Hookean energy and scattered into a fixed CSR pattern by a Numba kernel.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -26,9 +43,15 @@ class NewtonOptions:
     relative_tolerance : converged when |g|_inf <= relative_tolerance * |g0|_inf
     max_iterations : Newton iterations before ConvergenceError
     linear_solver : "auto", "direct" (SuperLU) or "amg-cg" (pyamg smoothed aggregation + CG)
-    amg_threshold : unknowns above which "auto" uses AMG-CG
-    cg_rtol : largest relative residual of the inner CG solve; it tightens with the Newton residual
-        (min(cg_rtol, |g| / |g0|), an Eisenstat-Walker-type forcing term)
+    amg_threshold : unknowns above which "auto" uses AMG-CG (measured crossover: at 6.9k unknowns
+        AMG-CG is 2.5x faster than SuperLU on the FEM Hessian, at 43k 16x; bench_solver.py)
+    amg_threshold_exact : the same when ``try_exact_hessian`` is set (the exact, possibly indefinite
+        Hessian needs a factorisation, and the mask fit measured 18 Newton iterations with it against
+        73 with the projected Hessian and AMG-CG, so "auto" keeps the direct solver longer there)
+    cg_rtol : largest relative residual of the inner CG solve (the Eisenstat-Walker forcing term,
+        choice 2, tightens it as the Newton residual falls)
+    amg_rebuild_iterations : CG iterations with a reused AMG hierarchy above which it is rebuilt
+    blas_threads : BLAS threads inside the solve (threadpoolctl); None leaves the process setting
     regularization : added to the Hessian diagonal, times its mean diagonal (keeps floating bodies solvable)
     try_exact_hessian : first try the unprojected Hessian (quadratic convergence where the energy is
         locally convex, e.g. compressed springs balanced by inertia); fall back to the projected one
@@ -41,12 +64,15 @@ class NewtonOptions:
     relative_tolerance: float = 1e-8
     max_iterations: int = 100
     linear_solver: str = "auto"
-    amg_threshold: int = 20_000
+    amg_threshold: int = 5_000
+    amg_threshold_exact: int = 20_000
     cg_rtol: float = 1e-2
     regularization: float = 1e-10
     max_line_search: int = 40
     max_step: float | None = None
     try_exact_hessian: bool = False
+    amg_rebuild_iterations: int = 40
+    blas_threads: int | None = 1
 
     def __post_init__(self):
         if self.linear_solver not in ("auto", "direct", "amg-cg"):
@@ -62,6 +88,10 @@ class NewtonResult:
     gradient_norm: float   # |g_free|_inf at the solution
     energy: float
     linear_solver: str
+    timings: dict = field(default_factory=dict)  # CPU s per phase (energy, gradient, hessian, free_block,
+    #                                               linear_solve, line_search; amg_setup and cg within it)
+    cg_iterations: int = 0
+    amg_setups: int = 0
 
 
 def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
@@ -77,32 +107,121 @@ def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
     return b.reshape(3 * n, 6)
 
 
+class AmgPreconditioner:
+    """Smoothed-aggregation AMG (pyamg) V-cycle for CG, with the hierarchy kept across Newton iterations.
+
+    Newton's Hessians change little from one iteration to the next, so the hierarchy of an earlier
+    matrix stays a good preconditioner: :meth:`solve` runs CG on the new matrix with the old
+    hierarchy and rebuilds it (``setups`` counts the builds) only when CG needs more than
+    ``rebuild_iterations`` iterations or does not converge. The V-cycle (symmetric Gauss-Seidel pre-
+    and post-smoothing, sparse LU on the coarsest level) is applied directly, without pyamg's
+    per-call residual norms.
+    """
+
+    def __init__(self, near_null: np.ndarray | None = None, rebuild_iterations: int = 40, max_iterations: int = 500):
+        self.near_null = near_null
+        self.rebuild_iterations = rebuild_iterations
+        self.max_iterations = max_iterations
+        self.ml = None
+        self.setups = 0
+        self.iterations = 0        # CG iterations over all solves
+        self.setup_seconds = 0.0   # CPU s spent building hierarchies
+        self.solve_seconds = 0.0   # CPU s spent in CG
+
+    def build(self, a: sp.csr_matrix, near_null: np.ndarray | None = None) -> None:
+        import pyamg
+
+        t = time.process_time()
+        if near_null is not None:
+            self.near_null = near_null
+        self.ml = pyamg.smoothed_aggregation_solver(a, B=self.near_null, symmetry="symmetric", max_coarse=500,
+                                                    max_levels=20, coarse_solver="splu")
+        self.setups += 1
+        self.setup_seconds += time.process_time() - t
+
+    def _vcycle(self, lvl: int, b: np.ndarray) -> np.ndarray:
+        levels = self.ml.levels
+        level = levels[lvl]
+        x = np.zeros_like(b)
+        level.presmoother(level.A, x, b)
+        coarse_b = level.R @ (b - level.A @ x)
+        if lvl == len(levels) - 2:
+            coarse_x = self.ml.coarse_solver(levels[-1].A, coarse_b)
+        else:
+            coarse_x = self._vcycle(lvl + 1, coarse_b)
+        x += level.P @ coarse_x
+        level.postsmoother(level.A, x, b)
+        return x
+
+    def apply(self, r: np.ndarray) -> np.ndarray:
+        """One V-cycle from a zero guess: an SPD approximation of A^-1 r."""
+        if len(self.ml.levels) == 1:
+            return np.asarray(self.ml.coarse_solver(self.ml.levels[0].A, r))
+        return self._vcycle(0, r)
+
+    def _pcg(self, a, b, rtol, maxiter, x0=None):
+        """Preconditioned CG; returns (x, iterations, converged). Stops at |r| <= rtol |b| (2-norms)."""
+        bnorm = float(np.linalg.norm(b))
+        x = np.zeros_like(b) if x0 is None else x0.copy()
+        if bnorm == 0.0:
+            return x, 0, True
+        r = b - a @ x if x0 is not None else b.copy()
+        z = self.apply(r)
+        p = z.copy()
+        rz = float(r @ z)
+        target = rtol * bnorm
+        for it in range(1, maxiter + 1):
+            ap = a @ p
+            pap = float(p @ ap)
+            if not pap > 0.0:  # lost positive definiteness (or breakdown)
+                return x, it, False
+            alpha = rz / pap
+            x += alpha * p
+            r -= alpha * ap
+            if float(np.linalg.norm(r)) <= target:
+                return x, it, True
+            z = self.apply(r)
+            rz_new = float(r @ z)
+            p *= rz_new / rz
+            p += z
+            rz = rz_new
+        return x, maxiter, False
+
+    def solve(self, a: sp.csr_matrix, b: np.ndarray, rtol: float, near_null: np.ndarray | None = None) -> np.ndarray:
+        t = time.process_time()
+        x = None
+        if self.ml is not None and self.ml.levels[0].A.shape == a.shape:
+            self.ml.levels[0].A = a  # the finest level is the current matrix; coarse levels are kept
+            x, its, ok = self._pcg(a, b, rtol, self.rebuild_iterations)
+            self.iterations += its
+            if ok:
+                self.solve_seconds += time.process_time() - t
+                return x
+        self.solve_seconds += time.process_time() - t
+        self.build(a, near_null)
+        t = time.process_time()
+        x, its, ok = self._pcg(a, b, rtol, self.max_iterations, x0=x)
+        self.iterations += its
+        self.solve_seconds += time.process_time() - t
+        return x
+
+
 def solve_spd(a: sp.csr_matrix, b: np.ndarray, method: str, near_null: np.ndarray | None = None,
               cg_rtol: float = 1e-2, cache: dict | None = None) -> np.ndarray:
     """Solve the SPD system a x = b by SuperLU ("direct") or pyamg SA-preconditioned CG ("amg-cg").
 
     With a ``cache`` dict, the AMG hierarchy of an earlier matrix of the same size is reused as the
-    preconditioner (Newton's Hessians change little between iterations); it is rebuilt when CG needs
-    more than 60 iterations.
+    preconditioner (see :class:`AmgPreconditioner`).
     """
     if method == "direct":
         return spla.spsolve(a.tocsc(), b, permc_spec="MMD_AT_PLUS_A")
-    import pyamg
-
     a = a.tocsr()
-    ml = cache.get("amg") if cache is not None else None
-    if ml is not None and ml.levels[0].A.shape == a.shape:
-        count = [0]
-        x, info = spla.cg(a, b, rtol=cg_rtol, maxiter=60, M=ml.aspreconditioner(cycle="V"),
-                          callback=lambda _: count.__setitem__(0, count[0] + 1))
-        if info == 0:
-            return x
-    ml = pyamg.smoothed_aggregation_solver(a, B=near_null, symmetry="symmetric", max_coarse=500, max_levels=20,
-                                           coarse_solver="splu")
-    if cache is not None:
-        cache["amg"] = ml
-    x = ml.solve(b, tol=cg_rtol, accel="cg", maxiter=500)
-    return np.asarray(x)
+    pre = cache.get("amg") if cache is not None else None
+    if pre is None:
+        pre = AmgPreconditioner(near_null)
+        if cache is not None:
+            cache["amg"] = pre
+    return pre.solve(a, b, cg_rtol, near_null)
 
 
 def _call_hessian(hessian, z, project):
@@ -110,6 +229,74 @@ def _call_hessian(hessian, z, project):
         return hessian(z, project=project)
     except TypeError:
         return hessian(z)
+
+
+class _FreeBlock:
+    """Extracts the free-dof block A[idx][:, idx] of CSR matrices, reusing the index map while the
+    sparsity pattern stays the same (it does within a Newton solve unless contacts open or close)."""
+
+    def __init__(self, free: np.ndarray):
+        self.free = free
+        self.remap = np.full(len(free), -1, dtype=np.int64)
+        self.remap[free] = np.arange(int(free.sum()))
+        self.key = None
+
+    def __call__(self, h: sp.csr_matrix) -> sp.csr_matrix:
+        h = h.tocsr()
+        if not h.has_sorted_indices:
+            h.sort_indices()
+        n = int(self.free.sum())
+        if self.key is not None and self.key[0].shape == h.indptr.shape and self.key[1].shape == h.indices.shape \
+                and np.array_equal(self.key[0], h.indptr) and np.array_equal(self.key[1], h.indices):
+            keep, indices, indptr, diag = self.keep, self.indices, self.indptr, self.diag
+        else:
+            rows = np.repeat(np.arange(h.shape[0]), np.diff(h.indptr))
+            keep = self.free[rows] & self.free[h.indices]
+            indices = self.remap[h.indices[keep]].astype(h.indices.dtype)
+            counts = np.bincount(self.remap[rows[keep]], minlength=n)
+            indptr = np.concatenate([[0], np.cumsum(counts)]).astype(h.indptr.dtype)
+            new_rows = np.repeat(np.arange(n), counts)
+            diag = np.flatnonzero(new_rows == indices)
+            if len(diag) != n:
+                diag = None
+            self.key = (h.indptr.copy(), h.indices.copy())
+            self.keep, self.indices, self.indptr, self.diag = keep, indices, indptr, diag
+        out = sp.csr_matrix((h.data[keep], indices, indptr), shape=(n, n))
+        return out
+
+    def add_to_diagonal(self, a: sp.csr_matrix, value: float) -> sp.csr_matrix:
+        if self.diag is not None:
+            a.data[self.diag] += value
+            return a
+        return a + sp.identity(a.shape[0], format="csr") * value
+
+
+@contextmanager
+def blas_threads(n: int | None):
+    """Limit BLAS threads inside the block (None: leave as is). The vectors of a Newton solve are too
+    short to gain from threaded level-1 BLAS, and OpenBLAS threads spin-wait on a loaded machine."""
+    if n is None:
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=n, user_api="blas"):
+        yield
+
+
+class _PhaseTimer:
+    """CPU seconds (time.process_time) per phase."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, phase: str):
+        t = time.process_time()
+        try:
+            yield
+        finally:
+            self.seconds[phase] = self.seconds.get(phase, 0.0) + time.process_time() - t
 
 
 def minimize_newton(
@@ -121,81 +308,137 @@ def minimize_newton(
     options: NewtonOptions = NewtonOptions(),
     near_null: Callable[[np.ndarray], np.ndarray] | None = None,
     what: str = "Newton solve",
+    amg_cache: dict | None = None,
 ) -> NewtonResult:
     """Minimise ``energy`` over the entries of ``z`` where ``free`` is True.
 
     energy(z) -> float (may return inf for an inadmissible z, e.g. inverted tets: the line search
     then backtracks); gradient(z) -> (N,); hessian(z, project=True) -> (N, N) sparse, PSD when projected. Raises ConvergenceError
     when the gradient does not fall below the tolerance within ``options.max_iterations``.
+    ``amg_cache``: a dict kept by the caller to reuse the AMG hierarchy across solves (e.g. the
+    outer contact loop). The result carries CPU seconds per phase (``timings``).
     """
+    with blas_threads(options.blas_threads):
+        return _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, what,
+                                {} if amg_cache is None else amg_cache)
+
+
+def _forcing_term(options: NewtonOptions, g2: float, g2_prev: float | None, eta_prev: float | None,
+                  tol2: float) -> float:
+    """Eisenstat & Walker (1996) choice 2: eta = gamma (|g_k| / |g_k-1|)^2 with their safeguard, capped
+    at ``cg_rtol`` and kept above 0.5 tol / |g| so that the last iterations do not over-solve."""
+    if g2_prev is None or eta_prev is None:
+        eta = options.cg_rtol
+    else:
+        eta = 0.9 * (g2 / g2_prev) ** 2
+        if 0.9 * eta_prev**2 > 0.1:
+            eta = max(eta, 0.9 * eta_prev**2)
+    eta = min(eta, options.cg_rtol)
+    if g2 > 0:
+        eta = max(eta, 0.5 * tol2 / g2)
+    return float(min(max(eta, 1e-12), options.cg_rtol))
+
+
+def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, what, amg_cache) -> NewtonResult:
+    timer = _PhaseTimer()
     z = np.array(z0, dtype=np.float64)
     free = np.asarray(free, dtype=bool)
     idx = np.flatnonzero(free)
     method = options.linear_solver
     if method == "auto":
-        method = "amg-cg" if len(idx) > options.amg_threshold else "direct"
-    e = energy(z)
+        limit = options.amg_threshold_exact if options.try_exact_hessian else options.amg_threshold
+        method = "amg-cg" if len(idx) > limit else "direct"
+    with timer("energy"):
+        e = energy(z)
     if not np.isfinite(e):
         raise ConvergenceError(f"{what}: the starting point has non-finite energy")
-    g = gradient(z)[idx]
+    with timer("gradient"):
+        g = gradient(z)[idx]
     g0 = float(np.max(np.abs(g))) if len(g) else 0.0
     tol = options.relative_tolerance * g0
     if options.force_tolerance is not None:
         tol = max(tol, options.force_tolerance)
     gnorm = g0
-    amg_cache: dict = {}
+    block = _FreeBlock(free)
+    pre = amg_cache.get("amg")
+    if method == "amg-cg" and pre is None:
+        pre = amg_cache["amg"] = AmgPreconditioner(rebuild_iterations=options.amg_rebuild_iterations)
+    cg0 = pre.iterations if pre is not None else 0
+    setups0 = pre.setups if pre is not None else 0
+    g2_prev = eta = None
+
+    def result(it):
+        t = dict(timer.seconds)
+        if pre is not None:
+            t["amg_setup"] = pre.setup_seconds
+            t["cg"] = pre.solve_seconds
+        return NewtonResult(z, it, gnorm, e, method, t, (pre.iterations - cg0) if pre else 0,
+                            (pre.setups - setups0) if pre else 0)
+
     for it in range(options.max_iterations):
         if gnorm <= tol:
-            return NewtonResult(z, it, gnorm, e, method)
-        nn = near_null(z)[idx] if (near_null is not None and method == "amg-cg") else None
+            return result(it)
+        g2 = float(np.linalg.norm(g))
         for project in ((False, True) if options.try_exact_hessian and method == "direct" else (True,)):
-            h = _call_hessian(hessian, z, project).tocsr()[idx][:, idx]
-            diag = h.diagonal()
-            reg = options.regularization * (float(np.mean(np.abs(diag))) or 1.0)
-            h = h + sp.identity(len(idx), format="csr") * reg
+            with timer("hessian"):
+                hfull = _call_hessian(hessian, z, project)
+            with timer("free_block"):
+                h = block(hfull)
+                diag = h.diagonal()
+                reg = options.regularization * (float(np.mean(np.abs(diag))) or 1.0)
+                h = block.add_to_diagonal(h, reg)
             with np.errstate(all="ignore"):
-                # inexact Newton (Eisenstat-Walker-type forcing): loose CG far from the solution
-                eta = min(options.cg_rtol, max(gnorm / g0, 1e-10)) if g0 > 0 else options.cg_rtol
-                dz = solve_spd(h, -g, method, nn, eta, amg_cache)
+                if method == "direct":
+                    with timer("linear_solve"):
+                        dz = spla.spsolve(h.tocsc(), -g, permc_spec="MMD_AT_PLUS_A")
+                else:
+                    # inexact Newton: Eisenstat-Walker forcing term for the CG tolerance
+                    eta = _forcing_term(options, g2, g2_prev, eta, tol * np.sqrt(max(len(idx), 1)))
+                    nn = near_null(z)[idx] if near_null is not None else None
+                    with timer("linear_solve"):
+                        dz = pre.solve(h, -g, eta, nn)
             slope = float(g @ dz)
             if np.isfinite(dz).all() and slope < 0:
                 break
+        g2_prev = g2
         if not np.isfinite(dz).all() or slope >= 0:  # not a descent direction: fall back to gradient
             dz = -g / (np.abs(diag) + reg)
             slope = float(g @ dz)
         if float(np.max(np.abs(dz))) <= 4 * np.finfo(float).eps * max(1.0, float(np.max(np.abs(z[idx])))):
             # the Newton step is below the round-off of the unknowns: nothing more can be gained
-            return NewtonResult(z, it, gnorm, e, method)
+            return result(it)
         step = 1.0
         if options.max_step is not None:
             big = float(np.max(np.abs(dz))) if len(dz) else 0.0
             if big > options.max_step:
                 step = options.max_step / big
         gt = None
-        for trial in range(options.max_line_search):
-            zt = z.copy()
-            zt[idx] += step * dz
-            et = energy(zt)
-            if np.isfinite(et) and et <= e + 1e-4 * step * slope:
-                break
-            if trial == 0 and step == 1.0 and np.isfinite(et):
-                # near the solution the energy decrease can drown in round-off; a full Newton step
-                # that halves the gradient is accepted (local quadratic convergence)
-                gt = gradient(zt)[idx]
-                if float(np.max(np.abs(gt))) < 0.5 * gnorm:
+        with timer("line_search"):
+            for trial in range(options.max_line_search):
+                zt = z.copy()
+                zt[idx] += step * dz
+                et = energy(zt)
+                if np.isfinite(et) and et <= e + 1e-4 * step * slope:
                     break
-                gt = None
-            step *= 0.5
-        else:
-            # energy stagnates at round-off: accept if the gradient is already small relative to the start
-            if gnorm <= max(tol, 1e-6 * g0):
-                return NewtonResult(z, it, gnorm, e, method)
-            raise ConvergenceError(f"{what}: line search failed at iteration {it} (|g| = {gnorm:.3g} N)")
+                if trial == 0 and step == 1.0 and np.isfinite(et):
+                    # near the solution the energy decrease can drown in round-off; a full Newton step
+                    # that halves the gradient is accepted (local quadratic convergence)
+                    gt = gradient(zt)[idx]
+                    if float(np.max(np.abs(gt))) < 0.5 * gnorm:
+                        break
+                    gt = None
+                step *= 0.5
+            else:
+                # energy stagnates at round-off: accept if the gradient is already small relative to the start
+                if gnorm <= max(tol, 1e-6 * g0):
+                    return result(it)
+                raise ConvergenceError(f"{what}: line search failed at iteration {it} (|g| = {gnorm:.3g} N)")
         z, e = zt, et
-        g = gt if gt is not None else gradient(z)[idx]
+        with timer("gradient"):
+            g = gt if gt is not None else gradient(z)[idx]
         gnorm = float(np.max(np.abs(g)))
     if gnorm <= tol:
-        return NewtonResult(z, options.max_iterations, gnorm, e, method)
+        return result(options.max_iterations)
     raise ConvergenceError(
         f"{what}: no convergence in {options.max_iterations} iterations (|g|_inf = {gnorm:.3g} N, "
         f"tolerance {tol:.3g} N)")

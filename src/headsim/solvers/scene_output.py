@@ -64,8 +64,8 @@ def plot_hertz(result, path: Path) -> Path:
     ax2.set_xlabel("r (mm)")
     ax2.set_ylabel("contact pressure (Pa)")
     ax2.set_title(f"F = {result.force * 1e3:.3g} mN: a = {result.contact_radius * 1e3:.3g} mm "
-                  f"(Hertz {a * 1e3:.3g}), δ = {result.indentation * 1e6:.3g} µm (Hertz {result.indentation_hertz * 1e6:.3g})",
-                  fontsize=8)
+                  f"(Hertz {a * 1e3:.3f} mm), δ = {result.indentation * 1e6:.3g} µm "
+                  f"(Hertz {result.indentation_hertz * 1e6:.1f} µm)", fontsize=8)
     ax2.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)

@@ -21,15 +21,35 @@ the stability limit (``integrator="substepped"``, the seed's collision force at 
 ``integrator="explicit"`` runs the seed-faithful loop (eqs. 3.1-3.13) at the seed's dt, which raises
 DivergenceError.
 
-What this reproduces and what it does not (10 steps = 2 s): both rigid -- the cuboid keeps its shape
-(shape change 0.5 %) and the sphere sinks into it (and bounces), but the k = 5 N/m sphere does *not*
-keep its shape (about 35 % shape change): its 9 N weight on 5 N/m springs is no rigid body at this
-size; rigid sphere on soft cuboid -- the cuboid deforms (about 40 %) and the sphere much less (5 %),
-as in the thesis, but the 0.2 N/m cuboid is flattened and the sphere passes through it after about
-3 steps; both soft -- both deform (about 35-40 %). The per-point collision constant makes the contact
-stiffness grow with the number of colliding points (a mesh dependence of the seed's model;
-headsim's FEM contact uses a pressure penalty in Pa/m instead). The thesis gives no body sizes or
-units beyond these numbers, so the mismatch cannot be traced further.
+What this reproduces and what it does not (10 steps = 2 s, R = 0.5 m): both rigid -- the cuboid keeps
+its shape (shape change 0.5 %) and the sphere sinks into it (and bounces), but the k = 5 N/m sphere
+does *not* keep its shape (about 35 % shape change); rigid sphere on soft cuboid -- the cuboid deforms
+(about 40 %) and the sphere much less (5 %), as in the thesis, but the 0.2 N/m cuboid is flattened and
+the sphere passes through it after about 3 steps; both soft -- both deform (about 35-40 %).
+
+Why the seed's numbers cannot all hold in SI (three dimensionless groups; M = 0.917 kg, g = 9.81 m/s^2):
+
+1. Stability, omega_max dt: the masses are M / N per point (eq. 2.1), so omega_max^2 ~ (springs per
+   point) k N / M. At N = 200 points the explicit limit is 0.009 s (k = 5) and 0.017 s (k = 5 / 0.2):
+   dt = 0.2 s is 10-20x beyond it for any body size (the limit does not depend on lengths). The
+   seed's rule k < 1/dt (eqs. 3.3-3.6) is the first-order problem x' = -k x, i.e. unit point masses.
+   Reading the masses in grams as kilograms would make dt = 0.2 s stable (limit 0.28 s / 0.54 s), but
+   then the weight is 9,000 N on 5 N/m springs and the sphere falls through everything.
+2. Rigidity, M g / (k_eff L): a spring network under its own weight strains by about M g / (c k n L)
+   (n points across, L the size, c ~ 1-2). "Keeps its shape" (< 5 %) at k = 5 N/m needs n L of tens
+   of metres: at R = 0.5 m the sphere strains about 35 %, at R = 5 m with 9 points across
+   (``radius=5, sphere_divisions=4``) 1-3 % -- there scenario 4.2.1 reproduces completely (both keep
+   their shape, the sphere sinks somewhat into the cuboid; asserted in the tests).
+3. Contact, M g / (k_coll N_c R): the per-point penalty F = k_coll d (eq. 3.8) acts on the colliding
+   points only, with no reaction on the other body, so the 9 N weight is held by about 9 / N_c metres
+   of penetration of the sphere's points, while the cuboid is loaded only through its own points that
+   lie inside the sphere. At the size where the k = 5 sphere is rigid (R = 5 m) the sphere therefore
+   sinks about 0.1 R into the soft cuboid and the cuboid deforms only 2-4 % (coarse or 8 x 4 x 8
+   cells alike): the "cuboid deforms" outcomes of 4.2.2 / 4.2.3 need the metre size, where the k = 5
+   sphere is no longer rigid. No single size reproduces all three scenarios; the thesis gives no
+   body sizes, mesh sizes or units beyond the numbers above, so the mismatch cannot be traced further.
+   The per-point constant also makes the contact stiffness grow with the number of colliding points
+   (a mesh dependence of the seed's model; headsim's FEM contact uses a pressure penalty in Pa/m).
 """
 
 from __future__ import annotations
@@ -83,10 +103,11 @@ def rigid_fit_deviation(rest: np.ndarray, current: np.ndarray) -> float:
 
 
 def _sphere_cuboid_bodies(k_sphere: float, k_cuboid: float, sphere_mass: float, cuboid_mass: float,
-                          radius: float, sphere_divisions: int, damping_ratio: float):
+                          radius: float, sphere_divisions: int, damping_ratio: float, cuboid_divisions=(4, 2, 4)):
     """Cuboid 4R x 2R x 4R on a fixed floor (bottom vertices fixed), ball of radius R 2 % of R above it."""
     h = 2.0 * radius
-    cub = block_tetmesh((4 * radius, h, 4 * radius), (4, 2, 4), origin=(-2 * radius, -h, -2 * radius), name="cuboid")
+    cub = block_tetmesh((4 * radius, h, 4 * radius), tuple(cuboid_divisions), origin=(-2 * radius, -h, -2 * radius),
+                        name="cuboid")
     cub = replace(cub, fixed=cub.vertices[:, 1] <= -h + 1e-9 * radius)
     sph = ball_tetmesh(radius, sphere_divisions, center=(0.0, 1.02 * radius, 0.0), name="sphere")
     ms = mass_spring_from_tetmesh(sph, stiffness=k_sphere, total_mass=sphere_mass, gravity=STANDARD_GRAVITY,
@@ -102,7 +123,7 @@ def _sphere_cuboid_bodies(k_sphere: float, k_cuboid: float, sphere_mass: float, 
 def seed_sphere_on_cuboid(scenario: str = "both-rigid", steps: int = 10, dt: float = 0.2, k_coll: float = 1.0,
                           integrator: str = "substepped", sphere_mass: float = 0.917, cuboid_mass: float = 0.1,
                           radius: float = 0.5, sphere_divisions: int = 2, damping_ratio: float = 0.0,
-                          direction: str = "consistent",
+                          direction: str = "consistent", cuboid_divisions: tuple[int, int, int] = (4, 2, 4),
                           progress: Callable[[int], None] | None = None) -> SceneResult:
     """Run one of the thesis's sphere-on-cuboid scenarios (Heinze §4.2).
 
@@ -116,11 +137,14 @@ def seed_sphere_on_cuboid(scenario: str = "both-rigid", steps: int = 10, dt: flo
     """
     if scenario not in SEED_SCENARIOS:
         raise ParameterError(f"unknown scenario {scenario!r}; use one of {', '.join(SEED_SCENARIOS)}")
+    if not (np.isfinite(radius) and radius > 0) or sphere_divisions < 1 or min(cuboid_divisions) < 1:
+        raise ParameterError(f"need radius > 0 m and divisions >= 1, got radius {radius}, sphere divisions "
+                             f"{sphere_divisions}, cuboid divisions {tuple(cuboid_divisions)}")
     if integrator not in ("substepped", "explicit"):
         raise ParameterError(f"integrator must be 'substepped' or 'explicit', got {integrator!r}")
     ks, kc = SEED_SCENARIOS[scenario]
     model, off, tets, surfaces = _sphere_cuboid_bodies(ks, kc, sphere_mass, cuboid_mass, radius, sphere_divisions,
-                                                     damping_ratio)
+                                                     damping_ratio, cuboid_divisions)
     state = BodyState.at_rest(model.rest_positions)
     states = [state]
     force = SeedCollisionForce(model.body, surfaces, model.edges, k_coll, 0.0, direction)
