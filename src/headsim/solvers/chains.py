@@ -17,7 +17,8 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    literally: contacting bodies then get only half the external impulse), detection at q^{i+½}
    (fibre–fibre: :class:`headsim.collide.FibreBVH`; obstacles: signed distance fields sampled at the
    segment end points, iso-level ``level`` plus a tolerance band), persistence filter
-   n·(u⁻_A − u⁻_B) ≤ 0 (smooth contacts count as persistent, eq. 8.9), then per body the normal QP
+   n·(u⁻_A − u⁻_B) ≤ ‖g‖Δt (smooth contacts count as persistent, eq. 8.9; the tolerance keeps resting
+   contacts whose pre-impact velocities differ by round-off), then per body the normal QP
    ``min ½‖u − u⁻‖²_M s.t. J u ≥ v_N`` in its dual by projected Gauss–Seidel on the Delassus matrix,
    with v_N from both partners' pre-impact contact velocities weighted by their effective masses
    (eqs. 8.67–8.69), the friction programme and the restitution law u = (1+ε)u⁺ − εu⁻ + u^f.
@@ -448,6 +449,11 @@ class ChainOptions:
     penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step.
     fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
     bvh_rebuild_every : steps between BVH rebuilds (refit in between).
+    contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
+        constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
+        velocities and equal and opposite impulses (Moreau–Jean NSCD; no sag-through in stacks).
+    parallel_threshold : segments from which the Numba-parallel kernels are used (serial below: the
+        thread start-up costs more than it saves on small scenes).
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -467,6 +473,8 @@ class ChainOptions:
     penetration_recovery: float = 0.2
     fibre_contacts: bool = True
     bvh_rebuild_every: int = 10
+    contact_coupling: str = "coupled"
+    parallel_threshold: int = 2000
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -481,6 +489,8 @@ class ChainOptions:
             raise ParameterError("harmonisation_iterations, contact_sweeps and max_newton must be ≥ 1")
         if not (self.contact_band >= 0 and self.speculative_speed >= 0 and 0 <= self.penetration_recovery <= 1):
             raise ParameterError("contact_band, speculative_speed ≥ 0 and penetration_recovery in [0, 1]")
+        if self.contact_coupling not in ("per-body", "coupled"):
+            raise ParameterError("contact_coupling must be 'per-body' (seed) or 'coupled' (Gauss–Seidel over contacts)")
         if not isinstance(self.friction, FrictionLaw):
             raise ParameterError("friction must be a FrictionLaw")
 
@@ -517,6 +527,7 @@ class _Rows:
     partner_lever: np.ndarray
     gap: np.ndarray
     obstacle: np.ndarray
+    primary: np.ndarray
 
 
 class ChainSolver:
@@ -550,8 +561,10 @@ class ChainSolver:
         if self.fibre_loop:
             for f in range(F):
                 its[f], gaps[f] = K.correct_fibre_joints(f, *args, v_out, w_out)
-        else:
+        elif model.n_segments >= self.options.parallel_threshold:
             K.correct_joints_batch(np.arange(F, dtype=np.int64), *args, v_out, w_out, its, gaps)
+        else:
+            K.correct_joints_serial(np.arange(F, dtype=np.int64), *args, v_out, w_out, its, gaps)
         return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
 
     # -- detection ---------------------------------------------------------------------------------
@@ -577,7 +590,7 @@ class ChainSolver:
                     s = seg[hit]
                     lever = ends[hit] - r[s, None] * n - x[s]
                     parts.append(_Rows(s, np.full(len(s), -1), n, lever, np.zeros_like(n), phi[hit] - r[s],
-                                       np.ones(len(s), bool)))
+                                       np.ones(len(s), bool), np.ones(len(s), bool)))
         if o.fibre_contacts and model.n_segments > 1:
             from headsim.collide import FibreBVH, FibreSet
 
@@ -617,11 +630,13 @@ class ChainSolver:
                 a, b, ca, cb, n, gap = a[keep], b[keep], ca[keep], cb[keep], n[keep], gap[keep]
                 pa = ca - r[a, None] * n
                 pb = cb + r[b, None] * n
-                parts.append(_Rows(a, b, n, pa - x[a], pb - x[b], gap, np.zeros(len(a), bool)))
-                parts.append(_Rows(b, a, -n, pb - x[b], pa - x[a], gap, np.zeros(len(a), bool)))
+                z = np.zeros(len(a), bool)
+                parts.append(_Rows(a, b, n, pa - x[a], pb - x[b], gap, z, ~z))
+                parts.append(_Rows(b, a, -n, pb - x[b], pa - x[a], gap, z, z))
         if not parts:
             z = np.zeros((0, 3))
-            return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool))
+            return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
+                         np.zeros(0, bool))
         return _Rows(*[np.concatenate([getattr(p, k) for p in parts]) for k in _Rows.__dataclass_fields__])
 
     # -- contacts ----------------------------------------------------------------------------------
@@ -680,7 +695,8 @@ class ChainSolver:
                     u_out[s] = uo
                     lam_sorted[a:b] = lo
         else:
-            K.project_bodies_batch(bodies, row_off, u_minus, model.mass, R, model.inertia, nrm, lev, tg, mc, ms,
+            kern = K.project_bodies_batch if model.n_segments >= o.parallel_threshold else K.project_bodies_serial
+            kern(bodies, row_off, u_minus, model.mass, R, model.inertia, nrm, lev, tg, mc, ms,
                                    eps, mode, o.qp_iterations, o.qp_tolerance, u_out, lam_sorted, sweeps)
         if lp:
             from headsim.solvers.chains_lp import lp_friction
@@ -699,6 +715,7 @@ class ChainSolver:
         t_all = time.perf_counter()
         secs = {"joints": 0.0, "detection": 0.0, "contacts": 0.0, "integration": 0.0}
         S = model.n_segments
+        half_step = K.half_step if S >= o.parallel_threshold else K.half_step_serial
         x, R, v, w = state.position, state.rotation, state.velocity, state.angular_velocity
         g = np.asarray(o.gravity, float)
         dv_ext = (dt if o.external_impulse == "full" else 0.5 * dt) * g
@@ -716,8 +733,9 @@ class ChainSolver:
             newton = max(newton, nit)
             t1 = time.perf_counter()
             secs["joints"] += t1 - t0
-            K.half_step(x, R, vJ, wJ, 0.5 * dt, x_mid, R_mid)
-            u_minus = np.concatenate([vJ + dv_ext, wJ], axis=1)
+            w_mid = np.empty_like(wJ)
+            half_step(x, R, vJ, wJ, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
+            u_minus = np.concatenate([vJ + dv_ext, w_mid], axis=1)
             t2 = time.perf_counter()
             secs["integration"] += t2 - t1
             if rows is None:
@@ -730,16 +748,36 @@ class ChainSolver:
                 pb = np.maximum(rows.partner, 0)
                 ub = np.where(rows.obstacle[:, None], 0.0,
                               u_minus[pb, :3] + np.cross(u_minus[pb, 3:], rows.partner_lever))
-                keep = ((ua - ub) * rows.normal).sum(1) <= 0.0
+                # relative normal velocities below one step of gravity count as smooth (persistent):
+                # bodies resting on each other differ by round-off-sized amounts in their pre-impact
+                # velocities, which must not switch resting contacts off
+                smooth = np.linalg.norm(g) * dt
+                keep = ((ua - ub) * rows.normal).sum(1) <= smooth
                 rows = _Rows(*[getattr(rows, k)[keep] for k in _Rows.__dataclass_fields__])
-                order = np.argsort(rows.body, kind="stable")
+                # per body: fibre rows first, obstacle rows last (a static obstacle wins a conflict)
+                order = np.lexsort((rows.obstacle, rows.body))
                 bodies, starts = np.unique(rows.body[order], return_index=True)
                 row_off = np.append(starts, len(order)).astype(np.int64)
                 bodies = bodies.astype(np.int64)
                 lam = np.zeros(len(rows.body))
             u_pre = u_minus
             u = u_minus
-            if len(bodies):
+            if len(bodies) and o.contact_coupling == "coupled":
+                u = np.ascontiguousarray(u_minus.copy())
+                pr = np.nonzero(rows.primary)[0]
+                gp = rows.gap[pr]
+                tg = np.where(gp > 0, -gp, -o.penetration_recovery * gp) / (0.5 * dt)
+                lam_p = np.zeros(len(pr))
+                mc, ms = self._mu
+                sw = K.project_coupled(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
+                                       np.ascontiguousarray(rows.lever[pr]),
+                                       np.ascontiguousarray(rows.partner_lever[pr]), np.ascontiguousarray(tg), u,
+                                       model.mass, R_mid, model.inertia, mc, ms, float(o.restitution),
+                                       int(o.qp_iterations), float(o.qp_tolerance), lam_p)
+                lam[:] = 0.0
+                lam[pr] = lam_p
+                sweeps_max = max(sweeps_max, int(sw))
+            elif len(bodies):
                 for sweep in range(o.contact_sweeps):
                     targets = self._targets(rows, u, u_pre, model, Iwi, dt, sweep)
                     u, sw = self._project(rows, order, row_off, bodies, u_minus, targets, model, R_mid, lam)
@@ -747,15 +785,16 @@ class ChainSolver:
             u_end = u
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
-                dc = u_end - np.concatenate([vJ + dt * g, wJ], axis=1)
+                dc = u_end - np.concatenate([vJ + dt * g, w_mid], axis=1)
                 dx_extra = 0.5 * dt * dc[:, :3]
                 dth_extra = 0.5 * dt * dc[:, 3:]
         t3 = time.perf_counter()
         x_new = np.empty_like(x)
         R_new = np.empty_like(R)
         v_new = np.ascontiguousarray(u_end[:, :3])
-        w_new = np.ascontiguousarray(u_end[:, 3:])
-        K.half_step(x_mid, R_mid, v_new, w_new, 0.5 * dt, x_new, R_new)
+        w_new = np.empty((S, 3))
+        half_step(x_mid, R_mid, v_new, np.ascontiguousarray(u_end[:, 3:]), model.inertia, 0.5 * dt, x_new, R_new,
+                  w_new)
         secs["integration"] += time.perf_counter() - t3
         if not (np.isfinite(x_new).all() and np.isfinite(v_new).all() and np.isfinite(w_new).all()):
             raise DivergenceError(f"non-finite chain state at t = {state.time + dt:.4g} s (dt = {dt:g} s); "
@@ -767,7 +806,7 @@ class ChainSolver:
         st.potential_energy = potential_energy(model, new, g)
         st.spring_energy = spring_energy(model, new)
         st.max_joint_gap = float(joint_gaps(model, new).max(initial=0.0))
-        active = lam > 0 if len(lam) else np.zeros(0, bool)
+        active = (lam > 0) & (rows.primary | (o.contact_coupling == "per-body")) if len(lam) else np.zeros(0, bool)
         st.contacts = int(active.sum())
         st.obstacle_contacts = int((active & rows.obstacle).sum())
         st.fibre_contacts = st.contacts - st.obstacle_contacts

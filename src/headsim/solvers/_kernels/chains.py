@@ -88,13 +88,33 @@ def world_inverse_inertia(R, inertia):
     return out
 
 
+@njit(cache=True)
+def _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out):
+    for c in range(3):
+        x_out[s, c] = x[s, c] + h * v[s, c]
+    Rn = rodrigues(h * w[s]) @ R[s]
+    R_out[s] = Rn
+    # torque-free rotation keeps the world angular momentum L = I_w ω: ω ← I_w(R_new)⁻¹ I_w(R) ω
+    # (with the gyroscopic term neglected a frozen ω would pump energy from the tiny axial inertia
+    # of a thin segment into its transverse one; this update only ever lowers that energy)
+    bl = R[s].T @ w[s]
+    for c in range(3):
+        bl[c] *= inertia[s, c]
+    L = R[s] @ bl
+    bn = Rn.T @ L
+    for c in range(3):
+        bn[c] /= inertia[s, c]
+    wn = Rn @ bn
+    for c in range(3):
+        w_out[s, c] = wn[c]
+
+
 @njit(cache=True, parallel=True)
-def half_step(x, R, v, w, h, x_out, R_out):
-    """x + h v and exp(h w̃) R for every body (the θ = 1 position update of Alg. 6, lines 2 and 14)."""
+def half_step(x, R, v, w, inertia, h, x_out, R_out, w_out):
+    """x + h v, exp(h w̃) R and the angular-momentum-preserving ω for every body (the θ = 1
+    position update of Alg. 6, lines 2 and 14)."""
     for s in prange(x.shape[0]):
-        for c in range(3):
-            x_out[s, c] = x[s, c] + h * v[s, c]
-        R_out[s] = rodrigues(h * w[s]) @ R[s]
+        _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -573,3 +593,177 @@ def project_bodies_batch(bodies, row_off, u_minus, mass, R, inertia, normal, lev
             u_out[s, c] = uo[c]
         for k in range(b - a):
             lam_out[a + k] = lo[k]
+
+
+# --------------------------------------------------------------------------------------------------
+# coupled contact projection: nonlinear Gauss–Seidel over all contacts (Moreau–Jean NSCD)
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _frame(axis, n):
+    t1 = axis - (axis[0] * n[0] + axis[1] * n[1] + axis[2] * n[2]) * n
+    l1 = np.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
+    if l1 < 1e-9:
+        helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        t1 = helper - (helper[0] * n[0] + helper[1] * n[1] + helper[2] * n[2]) * n
+        l1 = np.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
+    t1 = t1 / l1
+    return t1, _cross(n, t1)
+
+
+@njit(cache=True)
+def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
+                    restitution, max_iter, tol, lam_out):
+    """Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
+    ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
+    λ_c·conv{μ_β d_β} per contact (frame t₁ from body A's axis) and the same exact 2-D block solves as
+    :func:`project_body`. u (S, 6) holds u⁻ on entry and the result on exit (restitution added to the
+    normal part). partner = −1: static obstacle. Returns the sweeps used."""
+    nc = body.shape[0]
+    m = mu_cos.shape[0]
+    MA = np.zeros((nc, 3, 6))
+    MB = np.zeros((nc, 3, 6))
+    JA = np.zeros((nc, 3, 6))
+    JB = np.zeros((nc, 3, 6))
+    W = np.zeros((nc, 3, 3))
+    for c in range(nc):
+        a = body[c]
+        n = normal[c]
+        t1, t2 = _frame(R[a, :, 2].copy(), n)
+        IA = world_inverse_inertia(R[a], inertia[a])
+        for k in range(3):
+            d = n if k == 0 else (t1 if k == 1 else t2)
+            rd = _cross(lever[c], d)
+            for q in range(3):
+                JA[c, k, q] = d[q]
+                JA[c, k, 3 + q] = rd[q]
+                MA[c, k, q] = d[q] / mass[a]
+            MA[c, k, 3:] = IA @ rd
+        b = partner[c]
+        if b >= 0:
+            IB = world_inverse_inertia(R[b], inertia[b])
+            for k in range(3):
+                d = n if k == 0 else (t1 if k == 1 else t2)
+                rd = _cross(partner_lever[c], d)
+                for q in range(3):
+                    JB[c, k, q] = d[q]
+                    JB[c, k, 3 + q] = rd[q]
+                    MB[c, k, q] = d[q] / mass[b]
+                MB[c, k, 3:] = IB @ rd
+        for k in range(3):
+            for q in range(3):
+                s = 0.0
+                for z in range(6):
+                    s += JA[c, k, z] * MA[c, q, z] + JB[c, k, z] * MB[c, q, z]
+                W[c, k, q] = s
+    lam = np.zeros(nc)
+    fr = np.zeros((nc, 2))
+    dun = np.zeros(u.shape)
+    px = np.zeros(max(m, 1))
+    py = np.zeros(max(m, 1))
+    Bl = np.zeros((2, 2))
+    cl = np.zeros(2)
+    it = 0
+    while it < max_iter:
+        it += 1
+        change = 0.0
+        for q in range(nc):
+            c = q if it % 2 == 1 else nc - 1 - q  # symmetric Gauss–Seidel
+            a = body[c]
+            b = partner[c]
+            vr = np.zeros(3)
+            for k in range(3):
+                s = 0.0
+                for z in range(6):
+                    s += JA[c, k, z] * u[a, z]
+                    if b >= 0:
+                        s -= JB[c, k, z] * u[b, z]
+                vr[k] = s
+            new = lam[c] + (target[c] - vr[0]) / W[c, 0, 0]
+            if new < 0.0:
+                new = 0.0
+            dl = new - lam[c]
+            if dl != 0.0:
+                for z in range(6):
+                    u[a, z] += MA[c, 0, z] * dl
+                    dun[a, z] += MA[c, 0, z] * dl
+                    if b >= 0:
+                        u[b, z] -= MB[c, 0, z] * dl
+                        dun[b, z] -= MB[c, 0, z] * dl
+                for k in range(3):
+                    vr[k] += W[c, k, 0] * dl
+                change = max(change, abs(dl) * W[c, 0, 0])
+            lam[c] = new
+            if m < 3:
+                continue
+            Bl[0, 0] = W[c, 1, 1]
+            Bl[0, 1] = W[c, 1, 2]
+            Bl[1, 0] = W[c, 2, 1]
+            Bl[1, 1] = W[c, 2, 2]
+            cl[0] = vr[1] - Bl[0, 0] * fr[c, 0] - Bl[0, 1] * fr[c, 1]
+            cl[1] = vr[2] - Bl[1, 0] * fr[c, 0] - Bl[1, 1] * fr[c, 1]
+            if lam[c] > 0.0:
+                for z in range(m):
+                    px[z] = lam[c] * mu_cos[z]
+                    py[z] = lam[c] * mu_sin[z]
+                nx, ny = _polygon_qp(Bl, cl, px, py, m)
+            else:
+                nx, ny = 0.0, 0.0
+            dx, dy = nx - fr[c, 0], ny - fr[c, 1]
+            if dx != 0.0 or dy != 0.0:
+                for z in range(6):
+                    u[a, z] += MA[c, 1, z] * dx + MA[c, 2, z] * dy
+                    if b >= 0:
+                        u[b, z] -= MB[c, 1, z] * dx + MB[c, 2, z] * dy
+                change = max(change, np.sqrt(dx * dx * Bl[0, 0] + dy * dy * Bl[1, 1]))
+            fr[c, 0] = nx
+            fr[c, 1] = ny
+        if change <= tol:
+            break
+    if restitution > 0.0:
+        for s in range(u.shape[0]):
+            for z in range(6):
+                u[s, z] += restitution * dun[s, z]
+    for c in range(nc):
+        lam_out[c] = lam[c]
+    return it
+
+
+@njit(cache=True)
+def correct_joints_serial(fibres, seg_off, anchored, x, R, v, w, mass, inertia, half, root_point, root_frame,
+                          dt, gravity, dx_extra, dth_extra, K, rest, damping, tol, max_iter, v_out, w_out,
+                          iterations, gaps):
+    """Serial twin of :func:`correct_joints_batch` (small problems, loaded machines)."""
+    for q in range(fibres.shape[0]):
+        f = fibres[q]
+        it, g = correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, root_point,
+                                     root_frame, dt, gravity, dx_extra, dth_extra, K, rest, damping, tol,
+                                     max_iter, v_out, w_out)
+        iterations[f] = it
+        gaps[f] = g
+
+
+@njit(cache=True)
+def project_bodies_serial(bodies, row_off, u_minus, mass, R, inertia, normal, lever, target, mu_cos, mu_sin,
+                          restitution, normal_mode, qp_iter, tol, u_out, lam_out, sweeps_out):
+    """Serial twin of :func:`project_bodies_batch`."""
+    for q in range(bodies.shape[0]):
+        s = bodies[q]
+        a, b = row_off[q], row_off[q + 1]
+        Iwi = world_inverse_inertia(R[s], inertia[s])
+        uo = np.zeros(6)
+        lo = np.zeros(b - a)
+        sweeps_out[q] = project_body(u_minus[s], mass[s], Iwi, normal[a:b], lever[a:b], R[s, :, 2].copy(),
+                                     target[a:b], mu_cos, mu_sin, restitution, normal_mode, qp_iter, tol, uo, lo)
+        for c in range(6):
+            u_out[s, c] = uo[c]
+        for k in range(b - a):
+            lam_out[a + k] = lo[k]
+
+
+@njit(cache=True)
+def half_step_serial(x, R, v, w, inertia, h, x_out, R_out, w_out):
+    """Serial twin of :func:`half_step`."""
+    for s in range(x.shape[0]):
+        _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out)
