@@ -34,7 +34,9 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
 Gap handling (our additions, both stated): the normal bound is v_N − g/(½Δt) for a separated pair
 with gap g > 0 inside the detection band (a speculative contact: it only acts if the pair would
 close the gap within the half step, so discrete detection does not tunnel for relative speeds up to
-``band / Δt``), and v_N + β·(−g)/(½Δt) for a penetration (β = ``penetration_recovery``).
+``band / Δt``), and v_N + β·(−g)/(½Δt) for a penetration (β = ``penetration_recovery``), the latter
+as a split impulse: it moves the positions of the second half step but is not kept in the velocity.
+Later harmonisation passes update the gaps to first order with the contact points' motion.
 
 Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
 t₂ = n × t₁; the admissible tangential impulses are the polygon λ_α·conv{μ_β d_β}
@@ -446,7 +448,9 @@ class ChainOptions:
     qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s).
     contact_band : detection band beyond contact as a fraction of the radius (fibre–fibre and default
         obstacles); speculative_speed : extra detection margin speed·Δt, m/s.
-    penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step.
+    penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step; the push-out is
+        applied to the positions only (split impulse: a second contact solve whose velocity is not kept),
+        so it adds no kinetic energy.
     fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
     bvh_rebuild_every : steps between BVH rebuilds (refit in between).
     contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
@@ -470,7 +474,7 @@ class ChainOptions:
     qp_tolerance: float = 1e-9
     contact_band: float = 0.5
     speculative_speed: float = 0.05
-    penetration_recovery: float = 0.2
+    penetration_recovery: float = 1.0
     fibre_contacts: bool = True
     bvh_rebuild_every: int = 10
     contact_coupling: str = "coupled"
@@ -640,7 +644,7 @@ class ChainSolver:
         return _Rows(*[np.concatenate([getattr(p, k) for p in parts]) for k in _Rows.__dataclass_fields__])
 
     # -- contacts ----------------------------------------------------------------------------------
-    def _targets(self, rows, u, u_pre, model, Iwi, dt, sweep):
+    def _targets(self, rows, gaps, beta, u, u_pre, model, Iwi, dt, sweep):
         """Lower bounds v_N of J u per row (eqs. 8.67–8.69 plus the gap terms of the module notes)."""
         o = self.options
         n = rows.normal
@@ -661,8 +665,7 @@ class ChainSolver:
                 vn[fib] = ((ma[:, None] * ua + mb[:, None] * ub) / (ma + mb)[:, None] * n[fib]).sum(1)  # eq. 8.67
             else:
                 vn[fib] = (ub * n[fib]).sum(1)
-        g = rows.gap
-        corr = np.where(g > 0, -g, -o.penetration_recovery * g) / (0.5 * dt)
+        corr = np.where(gaps > 0, -gaps, -beta * gaps) / (0.5 * dt)
         return vn + corr
 
     def _project(self, rows, order, row_off, bodies, u_minus, targets, model, R, lam):
@@ -705,6 +708,58 @@ class ChainSolver:
         lam[order] = lam_sorted
         return u_out, int(sweeps.max(initial=0))
 
+    def _joint_rows(self, model, rows, x_mid, R_mid, dt):
+        """Bilateral joint rows of every fibre with a contact: bodies k (−1: root anchor), l, levers, and the
+        target relative anchor velocity −d_mid/(½Δt) that closes the mid-step gap by the step's end."""
+        fib = model.segment_fibre
+        touched = np.zeros(model.n_fibres, bool)
+        touched[fib[rows.body]] = True
+        seg = np.nonzero(touched[fib])[0]
+        is_root = model.is_root[seg]
+        keep = ~is_root | model.anchored[fib[seg]]
+        seg, is_root = seg[keep], is_root[keep]
+        d3 = R_mid[:, :, 2]
+        h = model.half_length
+        k = np.where(is_root, -1, seg - 1)
+        rl = -h[seg, None] * d3[seg]
+        kk = np.maximum(k, 0)
+        rk = np.where(is_root[:, None], 0.0, h[kk, None] * d3[kk])
+        pk = np.where(is_root[:, None], model.root_point[fib[seg]], x_mid[kk] + rk)
+        d = pk - (x_mid[seg] + rl)
+        target = -d / (0.5 * dt)
+        return (k.astype(np.int64), seg.astype(np.int64), np.ascontiguousarray(rk), np.ascontiguousarray(rl),
+                np.ascontiguousarray(target))
+
+    def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
+                  x_mid=None):
+        """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6)."""
+        o = self.options
+        if not len(bodies):
+            return u_minus
+        if o.contact_coupling == "coupled":
+            u = np.ascontiguousarray(u_minus.copy())
+            pr = np.nonzero(rows.primary)[0]
+            gp = gaps[pr]
+            tg = np.where(gp > 0, -gp, -beta * gp) / (0.5 * dt)
+            lam_p = np.zeros(len(pr))
+            mc, ms = self._mu
+            jk, jl, jrk, jrl, jt = self._joint_rows(model, rows, x_mid, R_mid, dt)
+            sw = K.project_coupled(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
+                                   np.ascontiguousarray(rows.lever[pr]), np.ascontiguousarray(rows.partner_lever[pr]),
+                                   np.ascontiguousarray(tg), u, model.mass, R_mid, model.inertia, mc, ms,
+                                   float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p,
+                                   jk, jl, jrk, jrl, jt)
+            lam[:] = 0.0
+            lam[pr] = lam_p
+            sweeps_box[0] = max(sweeps_box[0], int(sw))
+            return u
+        u = u_minus
+        for sweep in range(o.contact_sweeps):
+            targets = self._targets(rows, gaps, beta, u, u_minus, model, Iwi, dt, sweep)
+            u, sw = self._project(rows, order, row_off, bodies, u_minus, targets, model, R_mid, lam)
+            sweeps_box[0] = max(sweeps_box[0], sw)
+        return u
+
     # -- step ----------------------------------------------------------------------------------------
     def step(self, model: ChainModel, state: ChainState, dt: float, obstacles=()) -> ChainState:
         """Advance by Δt (s); obstacles: sequence of :class:`Obstacle`. Raises DivergenceError on
@@ -725,7 +780,7 @@ class ChainSolver:
         R_mid = np.empty_like(R)
         rows = None
         newton = 0
-        sweeps_max = 0
+        sweeps_box = [0]
         u_end = None
         for it in range(o.harmonisation_iterations):
             t0 = time.perf_counter()
@@ -760,41 +815,45 @@ class ChainSolver:
                 row_off = np.append(starts, len(order)).astype(np.int64)
                 bodies = bodies.astype(np.int64)
                 lam = np.zeros(len(rows.body))
-            u_pre = u_minus
-            u = u_minus
-            if len(bodies) and o.contact_coupling == "coupled":
-                u = np.ascontiguousarray(u_minus.copy())
-                pr = np.nonzero(rows.primary)[0]
-                gp = rows.gap[pr]
-                tg = np.where(gp > 0, -gp, -o.penetration_recovery * gp) / (0.5 * dt)
-                lam_p = np.zeros(len(pr))
-                mc, ms = self._mu
-                sw = K.project_coupled(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
-                                       np.ascontiguousarray(rows.lever[pr]),
-                                       np.ascontiguousarray(rows.partner_lever[pr]), np.ascontiguousarray(tg), u,
-                                       model.mass, R_mid, model.inertia, mc, ms, float(o.restitution),
-                                       int(o.qp_iterations), float(o.qp_tolerance), lam_p)
-                lam[:] = 0.0
-                lam[pr] = lam_p
-                sweeps_max = max(sweeps_max, int(sw))
-            elif len(bodies):
-                for sweep in range(o.contact_sweeps):
-                    targets = self._targets(rows, u, u_pre, model, Iwi, dt, sweep)
-                    u, sw = self._project(rows, order, row_off, bodies, u_minus, targets, model, R_mid, lam)
-                    sweeps_max = max(sweeps_max, sw)
-            u_end = u
+            if it == 0:
+                gaps = rows.gap.copy()
+            else:  # contact points move with the bodies: first-order gap change of the new mid state
+                dxa = x_mid[rows.body] - x_mid0[rows.body]
+                dpa = dxa + np.cross(0.5 * dt * (w_mid - w_mid0)[rows.body], rows.lever)
+                pb = np.maximum(rows.partner, 0)
+                dpb = np.where(rows.obstacle[:, None], 0.0,
+                               x_mid[pb] - x_mid0[pb] + np.cross(0.5 * dt * (w_mid - w_mid0)[pb], rows.partner_lever))
+                gaps = rows.gap + ((dpa - dpb) * rows.normal).sum(1)
+            if it == 0:
+                x_mid0, w_mid0 = x_mid.copy(), w_mid.copy()
+            u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
+                                   sweeps_box, x_mid)
+            u_pos = u_vel
+            if o.penetration_recovery > 0 and (gaps < 0).any():
+                # split impulse: the penetration push-out moves the positions but is not kept as velocity
+                u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
+                                       R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid)
+            u_end = u_vel
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
-                dc = u_end - np.concatenate([vJ + dt * g, w_mid], axis=1)
+                dc = u_pos - np.concatenate([vJ + dt * g, w_mid], axis=1)
                 dx_extra = 0.5 * dt * dc[:, :3]
                 dth_extra = 0.5 * dt * dc[:, 3:]
+        sweeps_max = sweeps_box[0]
+        self._last_rows = rows
+        self._last_u = u_end
         t3 = time.perf_counter()
         x_new = np.empty_like(x)
         R_new = np.empty_like(R)
+        w_pos = np.empty((S, 3))
+        half_step(x_mid, R_mid, np.ascontiguousarray(u_pos[:, :3]), np.ascontiguousarray(u_pos[:, 3:]), model.inertia,
+                  0.5 * dt, x_new, R_new, w_pos)
         v_new = np.ascontiguousarray(u_end[:, :3])
-        w_new = np.empty((S, 3))
-        half_step(x_mid, R_mid, v_new, np.ascontiguousarray(u_end[:, 3:]), model.inertia, 0.5 * dt, x_new, R_new,
-                  w_new)
+        if u_pos is u_end:
+            w_new = w_pos
+        else:  # ω of the kept velocity, mapped to the new frame by the same angular-momentum rule
+            Lw = np.einsum("sac,sc,sbc,sb->sa", R_mid, model.inertia, R_mid, u_end[:, 3:])
+            w_new = np.einsum("sac,sc,sbc,sb->sa", R_new, 1.0 / model.inertia, R_new, Lw)
         secs["integration"] += time.perf_counter() - t3
         if not (np.isfinite(x_new).all() and np.isfinite(v_new).all() and np.isfinite(w_new).all()):
             raise DivergenceError(f"non-finite chain state at t = {state.time + dt:.4g} s (dt = {dt:g} s); "
