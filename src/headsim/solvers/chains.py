@@ -474,7 +474,7 @@ class ChainOptions:
     qp_tolerance: float = 1e-9
     contact_band: float = 0.5
     speculative_speed: float = 0.05
-    penetration_recovery: float = 1.0
+    penetration_recovery: float = 0.2
     fibre_contacts: bool = True
     bvh_rebuild_every: int = 10
     contact_coupling: str = "coupled"
@@ -548,6 +548,7 @@ class ChainSolver:
         self.last_stats = StepStats()
         self._bvh = None
         self._bvh_steps = 0
+        self._speed = None
         self._mu = options.friction.generators()
 
     # -- joints ----------------------------------------------------------------------------------
@@ -583,8 +584,10 @@ class ChainSolver:
         if obstacles:
             ends = np.concatenate([x - h[:, None] * d3, x + h[:, None] * d3])
             seg = np.concatenate([np.arange(model.n_segments)] * 2)
+            # speculative margin per end point from its own speed (obstacles are cheap to over-detect)
+            vend = np.concatenate([self._speed, self._speed]) if self._speed is not None else 0.0
             for ob in obstacles:
-                band = (o.contact_band * r[seg] if ob.band is None else ob.band) + margin
+                band = (o.contact_band * r[seg] if ob.band is None else ob.band) + margin + 1.5 * vend * dt
                 phi = ob.field.distance(ends) - ob.level
                 hit = np.nonzero(phi < r[seg] + band)[0]
                 if len(hit):
@@ -794,6 +797,8 @@ class ChainSolver:
             t2 = time.perf_counter()
             secs["integration"] += t2 - t1
             if rows is None:
+                self._speed = np.linalg.norm(u_minus[:, :3], axis=1) + model.half_length * np.linalg.norm(
+                    u_minus[:, 3:], axis=1)
                 rows = self._detect(model, x_mid, R_mid, dt, obstacles)
                 secs["detection"] += time.perf_counter() - t2
                 t2 = time.perf_counter()
@@ -836,7 +841,7 @@ class ChainSolver:
             u_end = u_vel
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
-                dc = u_pos - np.concatenate([vJ + dt * g, w_mid], axis=1)
+                dc = u_vel - np.concatenate([vJ + dt * g, w_mid], axis=1)
                 dx_extra = 0.5 * dt * dc[:, :3]
                 dth_extra = 0.5 * dt * dc[:, 3:]
         sweeps_max = sweeps_box[0]
