@@ -76,3 +76,4 @@ from headsim.cli import hair_collide_cmd, hair_render_cmd  # noqa: E402
 hair_collide_cmd.register(app)  # headsim hair collide
 hair_render_cmd.register(app)  # headsim hair render
 __import__("headsim.cli.hair_charge_cmd", fromlist=["register"]).register(app)  # headsim hair charge
+__import__("headsim.cli.hair_drape_cmd", fromlist=["register"]).register(app)  # headsim hair drape

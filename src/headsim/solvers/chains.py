@@ -31,10 +31,11 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    is corrected next step, "no cumulative error").
 4. Second half step q^{i+1} = q^{i+½} + ½Δt u^{i+1}.
 
-Gap handling (our additions, both stated): the normal bound is v_N − g/(½Δt) for a separated pair
+Gap handling (our additions, both stated): the normal bound is v_N − g/Δt for a separated pair
 with gap g > 0 inside the detection band (a speculative contact: it only acts if the pair would
-close the gap within the half step, so discrete detection does not tunnel for relative speeds up to
-``band / Δt``), and v_N + β·(−g)/(½Δt) for a penetration (β = ``penetration_recovery``), the latter
+close the gap within a full step, i.e. by the next mid-step, where the next detection happens, so
+the unconstrained first half step cannot carry it into penetration; the band grows with each
+segment's speed, so discrete detection does not tunnel), and v_N + β·(−g)/(½Δt) for a penetration (β = ``penetration_recovery``), the latter
 as a split impulse: it moves the positions of the second half step but is not kept in the velocity.
 Later harmonisation passes update the gaps to first order with the contact points' motion.
 
@@ -289,11 +290,17 @@ def _log_so3_many(R: np.ndarray) -> np.ndarray:
 def chain_model_from_polylines(nodes, fibre_offsets, *, radius: float = 35e-6, density: float = 1300.0,
                                young: float = 3.89e9, shear: float | None = None, anchored=True,
                                rest_shape: str = "straight", stiffness_scale: float = 1.0,
-                               joint_damping: float = 0.0) -> tuple[ChainModel, ChainState]:
+                               joint_damping: float = 0.0, spherical_inertia: bool = True
+                               ) -> tuple[ChainModel, ChainState]:
     """Kinematic chains from fibre polylines (nodes (N, 3) m, CSR ``fibre_offsets``), at rest.
 
     Segments are cylinders of the given radius (m) and density (kg/m³): m = ρπr²ℓ,
-    I = (m(3r² + ℓ²)/12, same, m r²/2). Joint springs (EI₁, EI₂, GJ)/ℓ_j with EI = Eπr⁴/4,
+    I = (m(3r² + ℓ²)/12, same, m r²/2); with ``spherical_inertia`` (default) the axial moment is raised
+    to the transverse one. Then ω × Iω ≡ 0, so neglecting the gyroscopic term is exact and the
+    exponential-map rotation conserves the rotational energy; with the true axial moment (ℓ/r ≈ 100,
+    I₃/I₁ ≈ 1e-4) the explicit rotation update transfers energy between axial spin and tumbling and the
+    torsion spring is 10⁴ times stiffer relative to its inertia. The price: spin about the fibre's own
+    axis (rolling) is slowed by ≈ ℓ²/(6r²). Joint springs (EI₁, EI₂, GJ)/ℓ_j with EI = Eπr⁴/4,
     GJ = Gπr⁴/2 (G = E/(2(1 + 0.49)) when not given) and ℓ_j the centre distance, times
     ``stiffness_scale`` (the seed leaves the stiffness as a user parameter). ``rest_shape``:
     ``"straight"`` (θ° = 0: a helix unwinds under gravity, as in the seed's reference scene) or
@@ -328,7 +335,9 @@ def chain_model_from_polylines(nodes, fibre_offsets, *, radius: float = 35e-6, d
     r = np.full(S, float(radius))
     length = 2 * half
     mass = density * np.pi * r**2 * length
-    inertia = np.stack([mass * (3 * r**2 + length**2) / 12, mass * (3 * r**2 + length**2) / 12, 0.5 * mass * r**2], 1)
+    i_perp = mass * (3 * r**2 + length**2) / 12
+    i_axis = i_perp if spherical_inertia else 0.5 * mass * r**2
+    inertia = np.stack([i_perp, i_perp, i_axis], 1)
     anch = np.broadcast_to(np.asarray(anchored, bool), (F,)).copy()
     is_root = np.zeros(S, bool)
     is_root[seg_off[:-1]] = True
@@ -450,9 +459,10 @@ class ChainOptions:
         obstacles); speculative_speed : extra detection margin speed·Δt, m/s.
     penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step; the push-out is
         applied to the positions only (split impulse: a second contact solve whose velocity is not kept),
-        so it adds no kinetic energy.
+        so it adds no kinetic energy (``split_recovery=False``: the push-out is kept as velocity).
     fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
-    bvh_rebuild_every : steps between BVH rebuilds (refit in between).
+    bvh_rebuild_every : unused (the BVH is rebuilt every step: its capsule radii carry each segment's
+        speculative margin 1.5·|v|Δt, which changes every step).
     contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
         constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
         velocities and equal and opposite impulses (Moreau–Jean NSCD; no sag-through in stacks).
@@ -478,6 +488,7 @@ class ChainOptions:
     fibre_contacts: bool = True
     bvh_rebuild_every: int = 10
     contact_coupling: str = "coupled"
+    split_recovery: bool = True
     parallel_threshold: int = 2000
 
     def __post_init__(self):
@@ -607,17 +618,11 @@ class ChainSolver:
             node_of_outer = np.arange(model.n_segments) + model.segment_fibre + 1
             nodes[node_of_outer] = x + h[:, None] * d3
             nodes[so[:-1] + np.arange(F)] = x[so[:-1]] - h[so[:-1], None] * d3[so[:-1]]
-            rdet = r * (1.0 + 0.5 * o.contact_band) + 0.5 * margin
-            if self._bvh is None or self._bvh.fibres.n_nodes != len(nodes):
-                fs = FibreSet(nodes, so + np.arange(F + 1), rdet)
-                self._bvh = FibreBVH(fs, "aabb", "spatial")
-                self._bvh_steps = 0
-            elif self._bvh_steps >= o.bvh_rebuild_every:
-                self._bvh.rebuild(nodes)
-                self._bvh_steps = 0
-            else:
-                self._bvh.update(nodes)
-                self._bvh_steps += 1
+            # per-segment detection radius: band plus a speculative margin from the segment's own speed
+            spd = self._speed if self._speed is not None else np.zeros(model.n_segments)
+            rdet = r * (1.0 + 0.5 * o.contact_band) + 0.5 * margin + 0.75 * spd * dt
+            fs = FibreSet(nodes, so + np.arange(F + 1), rdet)
+            self._bvh = FibreBVH(fs, "aabb", "spatial")
             pairs, params = self._bvh.self_contact_pairs()
             if len(pairs):
                 a, b = pairs[:, 0], pairs[:, 1]
@@ -633,7 +638,7 @@ class ChainSolver:
                     cn = np.linalg.norm(c, axis=1, keepdims=True)
                     n[~ok] = np.where(cn > 1e-12, c / np.maximum(cn, 1e-300), [0.0, 1.0, 0.0])
                 gap = dist - r[a] - r[b]
-                keep = gap < 0.5 * o.contact_band * (r[a] + r[b]) + margin
+                keep = gap < 0.5 * o.contact_band * (r[a] + r[b]) + margin + 0.75 * (spd[a] + spd[b]) * dt
                 a, b, ca, cb, n, gap = a[keep], b[keep], ca[keep], cb[keep], n[keep], gap[keep]
                 pa = ca - r[a, None] * n
                 pb = cb + r[b, None] * n
@@ -668,7 +673,7 @@ class ChainSolver:
                 vn[fib] = ((ma[:, None] * ua + mb[:, None] * ub) / (ma + mb)[:, None] * n[fib]).sum(1)  # eq. 8.67
             else:
                 vn[fib] = (ub * n[fib]).sum(1)
-        corr = np.where(gaps > 0, -gaps, -beta * gaps) / (0.5 * dt)
+        corr = np.where(gaps > 0, -gaps / dt, -beta * gaps / (0.5 * dt))
         return vn + corr
 
     def _project(self, rows, order, row_off, bodies, u_minus, targets, model, R, lam):
@@ -743,7 +748,7 @@ class ChainSolver:
             u = np.ascontiguousarray(u_minus.copy())
             pr = np.nonzero(rows.primary)[0]
             gp = gaps[pr]
-            tg = np.where(gp > 0, -gp, -beta * gp) / (0.5 * dt)
+            tg = np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt))
             lam_p = np.zeros(len(pr))
             mc, ms = self._mu
             jk, jl, jrk, jrl, jt = self._joint_rows(model, rows, x_mid, R_mid, dt)
@@ -838,7 +843,7 @@ class ChainSolver:
                 # split impulse: the penetration push-out moves the positions but is not kept as velocity
                 u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
                                        R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid)
-            u_end = u_vel
+            u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
                 dc = u_vel - np.concatenate([vJ + dt * g, w_mid], axis=1)
