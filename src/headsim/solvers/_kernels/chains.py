@@ -667,6 +667,8 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
                 W[c, k, q] = s
     nj = joint_k.shape[0]
     Wj = np.zeros((nj, 3, 3))
+    Gk = np.zeros((nj, 3, 3))  # Δω_k = Gk p (= I_k⁻¹ r̃_k p)
+    Gl = np.zeros((nj, 3, 3))
     for j in range(nj):
         Kj = np.zeros((3, 3))
         for side in range(2):
@@ -675,7 +677,12 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
                 continue
             r = joint_rk[j] if side == 0 else joint_rl[j]
             rt = skew(r)
-            Kj += np.eye(3) / mass[b] - rt @ world_inverse_inertia(R[b], inertia[b]) @ rt
+            G = world_inverse_inertia(R[b], inertia[b]) @ rt
+            if side == 0:
+                Gk[j] = G
+            else:
+                Gl[j] = G
+            Kj += np.eye(3) / mass[b] - rt @ G
         Wj[j] = np.linalg.inv(Kj)
     lam = np.zeros(nc)
     fr = np.zeros((nc, 2))
@@ -684,6 +691,7 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
     py = np.zeros(max(m, 1))
     Bl = np.zeros((2, 2))
     cl = np.zeros(2)
+    vr = np.zeros(3)
     it = 0
     while it < max_iter:
         it += 1
@@ -692,26 +700,41 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
             j = jq if jq < nj else 2 * nj - 1 - jq  # forward and backward along the chains
             k = joint_k[j]
             l = joint_l[j]
-            vr = -joint_target[j]
+            rl = joint_rl[j]
+            v0 = -joint_target[j, 0] - u[l, 0] - (u[l, 4] * rl[2] - u[l, 5] * rl[1])
+            v1 = -joint_target[j, 1] - u[l, 1] - (u[l, 5] * rl[0] - u[l, 3] * rl[2])
+            v2 = -joint_target[j, 2] - u[l, 2] - (u[l, 3] * rl[1] - u[l, 4] * rl[0])
             if k >= 0:
-                vr = vr + u[k, :3] + _cross(u[k, 3:], joint_rk[j])
-            vr = vr - u[l, :3] - _cross(u[l, 3:], joint_rl[j])
-            p = -(Wj[j] @ vr)
+                rk = joint_rk[j]
+                v0 += u[k, 0] + (u[k, 4] * rk[2] - u[k, 5] * rk[1])
+                v1 += u[k, 1] + (u[k, 5] * rk[0] - u[k, 3] * rk[2])
+                v2 += u[k, 2] + (u[k, 3] * rk[1] - u[k, 4] * rk[0])
+            Wq = Wj[j]
+            p0 = -(Wq[0, 0] * v0 + Wq[0, 1] * v1 + Wq[0, 2] * v2)
+            p1 = -(Wq[1, 0] * v0 + Wq[1, 1] * v1 + Wq[1, 2] * v2)
+            p2 = -(Wq[2, 0] * v0 + Wq[2, 1] * v1 + Wq[2, 2] * v2)
             if k >= 0:
-                dwk = world_inverse_inertia(R[k], inertia[k]) @ _cross(joint_rk[j], p)
+                G = Gk[j]
+                im = 1.0 / mass[k]
+                u[k, 0] += p0 * im
+                u[k, 1] += p1 * im
+                u[k, 2] += p2 * im
                 for z in range(3):
-                    u[k, z] += p[z] / mass[k]
-                    u[k, 3 + z] += dwk[z]
-            dwl = world_inverse_inertia(R[l], inertia[l]) @ _cross(joint_rl[j], p)
+                    u[k, 3 + z] += G[z, 0] * p0 + G[z, 1] * p1 + G[z, 2] * p2
+            G = Gl[j]
+            im = 1.0 / mass[l]
+            u[l, 0] -= p0 * im
+            u[l, 1] -= p1 * im
+            u[l, 2] -= p2 * im
             for z in range(3):
-                u[l, z] -= p[z] / mass[l]
-                u[l, 3 + z] -= dwl[z]
-            change = max(change, np.sqrt(vr[0] ** 2 + vr[1] ** 2 + vr[2] ** 2))
+                u[l, 3 + z] -= G[z, 0] * p0 + G[z, 1] * p1 + G[z, 2] * p2
+            d = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            if d > change:
+                change = d
         for q in range(nc):
             c = q if it % 2 == 1 else nc - 1 - q  # symmetric Gauss–Seidel
             a = body[c]
             b = partner[c]
-            vr = np.zeros(3)
             for k in range(3):
                 s = 0.0
                 for z in range(6):
