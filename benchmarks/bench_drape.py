@@ -38,9 +38,9 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--fibres", type=int, default=355)
     ap.add_argument("--segments", type=int, default=100)
-    ap.add_argument("--settle", type=int, default=150)
-    ap.add_argument("--steps", type=int, default=40)
-    ap.add_argument("--loop-steps", type=int, default=3)
+    ap.add_argument("--settle", type=int, default=30)
+    ap.add_argument("--steps", type=int, default=5)
+    ap.add_argument("--loop-steps", type=int, default=1)
     ap.add_argument("--friction", default="aniso")
     args = ap.parse_args()
     import numba

@@ -27,7 +27,6 @@ def drape_cmd(
     render: bool = typer.Option(False, help="also write path-traced frames to rendered/ (slow)"),
 ) -> None:
     """Drop fibres onto an obstacle; write trajectory (NPZ + VTK polylines), energy/contacts plot, frames."""
-    import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from headsim.cli._common import atomic_output_dir
@@ -61,7 +60,6 @@ def drape_cmd(
                f"{ext[0] * 100:.2f} × {ext[1] * 100:.2f} × {ext[2] * 100:.2f} cm = {vol * 1e6:.1f} cm³, "
                f"max penetration {res.max_penetration.max() * 1e6:.1f} µm, max joint gap "
                f"{res.max_joint_gap.max() * 1e6:.2f} µm; wrote {len(files)} files to {out}")
-    del np
 
 
 def register(app: typer.Typer) -> None:
