@@ -77,3 +77,4 @@ def test_bounding_box_volume():
     ext, vol = bounding_box(p)
     np.testing.assert_allclose(ext, [0.01, 0.02, 0.03])
     assert vol == pytest.approx(6e-6)
+

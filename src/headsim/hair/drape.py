@@ -152,7 +152,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
     elif name in ("sphere-helical", "terrain"):
         F, n = n_fibres or 355, segments or 100
         roots = _disc(F, 0.004, rng)
-        top = 0.12
+        top = 0.12 if name == "sphere-helical" else 0.0
         polys = [_helix(n + 1, length, 0.012, 0.008, rng.uniform(0, 2 * np.pi), (rx, top, rz))
                  for rx, rz in roots]
         if name == "sphere-helical":
@@ -164,8 +164,8 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         else:
             fld, mesh = _terrain_field()
             obstacles = [Obstacle(fld, name="terrain")]
-            desc = (f"{F} vertical helical fibres × {n} segments onto a bumpy terrain (cosine bumps 2.5 cm, "
-                    f"period 12 cm, grid distance field 2 mm); friction {friction_mode}")
+            desc = (f"{F} vertical helical fibres × {n} segments, roots at y = 0, onto a bumpy terrain (cosine "
+                    f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field 2 mm); friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     elif name == "plane":
         F, n = n_fibres or 250, segments or 100
@@ -192,13 +192,13 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         fld = GridDistanceField.from_mesh(v, t, 0.003, band=0.012)
         polys = []
         for p0, nr in zip(roots, normals):
-            d = nr + np.array([0.0, 0.3, 0.0])
+            d = nr + np.array([0.0, -0.6, 0.0])
             d /= np.linalg.norm(d)
             polys.append(p0 + 3 * r * nr + np.linspace(0, length, n + 1)[:, None] * d)
         obstacles = [Obstacle(fld, name="head")]
         mesh = (v, t)
         desc = (f"{len(roots)} fibres × {n} segments, {length * 100:g} cm, rooted on the bundled head's scalp, "
-                f"starting along the skin normal; head distance field 3 mm; friction {friction_mode}")
+                f"starting between the skin normal and straight down; head distance field 3 mm; friction {friction_mode}")
         dur = 0.5 if duration is None else duration
     nodes = np.concatenate(polys)
     offsets = np.arange(0, len(nodes) + 1, polys[0].shape[0])
