@@ -80,3 +80,4 @@ hair_collide_cmd.register(app)  # headsim hair collide
 hair_render_cmd.register(app)  # headsim hair render
 __import__("headsim.cli.hair_charge_cmd", fromlist=["register"]).register(app)  # headsim hair charge
 __import__("headsim.cli.hair_style_cmd", fromlist=["register"]).register(app)  # headsim hair style
+__import__("headsim.cli.hair_drape_cmd", fromlist=["register"]).register(app)  # headsim hair drape

@@ -1,0 +1,326 @@
+"""Hair drape scenes: rigid-segment fibres falling onto obstacles (Sobottka 2008, §8.6).
+
+Scenes (digest §2; sizes the seed does not state — sphere radius, heights, helix geometry — are ours
+and listed in every scene's ``description``):
+
+* ``sphere-horizontal`` (§8.6.1): a flat, one-side-fixed ribbon of horizontal fibres (seed: 500 × 40
+  segments, 30 cm) falling onto a sphere centred under its midline.
+* ``sphere-helical`` (§8.6.2, the reference scene): a vertical strand of initially helical fibres
+  (seed: 355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below; rest shape straight, so
+  the helices unwind.
+* ``plane`` (§8.6.4): a horizontal helical arrangement (seed: 250 × 100) onto a 22.5° inclined plane.
+* ``terrain`` (§8.6.3): the vertical helical strand onto a bumpy terrain (grid distance field of a
+  height-field mesh).
+* ``head``: fibres rooted on the scalp of the bundled head, draping under gravity against the head's
+  narrow-band distance field.
+
+Friction (``friction``): ``aniso`` — with / against the scales and across from the keratin table
+(wool/wool static dry, Schwartz & Knowles via Sobottka Tab. 2.11: 0.13 / 0.61 / 0.21; the only
+complete set of the three directions in the database); ``iso`` — μ = 0.47 (§8.6.5.2); ``none``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from headsim.collide import GridDistanceField, PlaneField, SphereField
+from headsim.errors import DivergenceError, ParameterError
+from headsim.hair.properties import MASS_DENSITY, MODULI_ROBBINS, friction
+from headsim.solvers.chains import (
+    ChainModel,
+    ChainOptions,
+    ChainSolver,
+    ChainState,
+    FrictionLaw,
+    Obstacle,
+    chain_model_from_polylines,
+    polylines_from_state,
+)
+
+__all__ = ["SCENES", "FRICTION_MODES", "DrapeScene", "DrapeResult", "friction_law", "build_drape_scene",
+           "run_drape", "bounding_box", "write_drape"]
+
+SCENES = ("sphere-horizontal", "sphere-helical", "plane", "terrain", "head")
+FRICTION_MODES = ("aniso", "iso", "none")
+FIBRE_DIAMETER = 70e-6  # m, Sobottka §8.6 ("durchgängig ein Querschnitt von 70 µm")
+
+
+def friction_law(mode: str) -> FrictionLaw:
+    """The friction model of a CLI mode (see the module docstring)."""
+    if mode == "aniso":
+        w = friction("wool/wool", 1).static
+        a = friction("wool/wool", 2).static
+        c = friction("wool/wool", 3).static
+        return FrictionLaw(w, a, c)
+    if mode == "iso":
+        return FrictionLaw.isotropic(0.47)
+    if mode == "none":
+        return FrictionLaw.none()
+    raise ParameterError(f"friction must be one of {', '.join(FRICTION_MODES)}, got {mode!r}")
+
+
+@dataclass
+class DrapeScene:
+    name: str
+    description: str
+    model: ChainModel
+    state: ChainState
+    obstacles: list
+    dt: float
+    n_steps: int
+    options: ChainOptions
+    obstacle_mesh: tuple | None = None  # (vertices, triangles) for pictures, m
+
+
+@dataclass
+class DrapeResult:
+    times: np.ndarray  # (K,) s, recorded frames
+    polylines: np.ndarray  # (K, F, n+1, 3) m
+    step_time: np.ndarray  # (steps,) s
+    kinetic: np.ndarray  # (steps,) J
+    total_energy: np.ndarray  # (steps,) J
+    contacts: np.ndarray  # (steps,) int
+    fibre_contacts: np.ndarray
+    obstacle_contacts: np.ndarray
+    max_joint_gap: np.ndarray  # (steps,) m
+    max_penetration: np.ndarray  # (steps,) m
+    newton_iterations: np.ndarray
+    qp_sweeps: np.ndarray
+    seconds: dict = field(default_factory=dict)  # summed per-phase wall time, s
+
+
+def _helix(n_nodes, length, radius, pitch_height, phase, axis_point, vertical=True):
+    """A helix polyline of arc length ``length`` (m) around a vertical (y) or horizontal (x) axis."""
+    turns_len = np.hypot(2 * np.pi * radius, pitch_height)
+    s = np.linspace(0, length, n_nodes)
+    ang = phase + 2 * np.pi * s / turns_len
+    h = pitch_height * s / turns_len
+    if vertical:
+        return np.stack([axis_point[0] + radius * np.cos(ang), axis_point[1] - h, axis_point[2] + radius * np.sin(ang)], 1)
+    return np.stack([axis_point[0] + h, axis_point[1] + radius * np.cos(ang), axis_point[2] + radius * np.sin(ang)], 1)
+
+
+def _disc(n, radius, rng):
+    r = radius * np.sqrt(rng.uniform(size=n))
+    t = rng.uniform(0, 2 * np.pi, n)
+    return np.stack([r * np.cos(t), r * np.sin(t)], 1)
+
+
+def _terrain_field(spacing=2e-3):
+    """Bumpy terrain y = h(x, z) as a triangle mesh and its narrow-band distance field (m)."""
+    n = 61
+    xs = np.linspace(-0.15, 0.15, n)
+    X, Z = np.meshgrid(xs, xs, indexing="ij")
+    Y = -0.10 + 0.025 * np.cos(2 * np.pi * X / 0.12) * np.cos(2 * np.pi * Z / 0.12) - 0.01 * (X**2 + Z**2) / 0.01
+    v = np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    tri = np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, c], 1)])  # +y facing
+    return GridDistanceField.from_mesh(v, tri, spacing, band=4 * spacing, far_sign="positive"), (v, tri)
+
+
+def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int | None = None,
+                      segments: int | None = None, length: float = 0.30, dt: float = 1e-3,
+                      duration: float | None = None, seed: int = 0, **option_overrides) -> DrapeScene:
+    """One of :data:`SCENES` at the seed's size (or ``n_fibres`` × ``segments`` when given)."""
+    if name not in SCENES:
+        raise ParameterError(f"unknown drape scene {name!r}; choose one of {', '.join(SCENES)}")
+    if not (dt > 0 and length > 0):
+        raise ParameterError("dt and length must be > 0")
+    rng = np.random.default_rng(seed)
+    r = 0.5 * FIBRE_DIAMETER
+    law = friction_law(friction_mode)
+    mesh = None
+    anchored = True
+    if name == "sphere-horizontal":
+        F, n = n_fibres or 500, segments or 40
+        R = 0.06
+        spacing = 2.2 * r
+        zs = (np.arange(F) - (F - 1) / 2) * spacing
+        x = np.linspace(-0.5 * length, 0.5 * length, n + 1)
+        polys = [np.stack([x, np.full(n + 1, 0.002 + r), np.full(n + 1, z)], 1) for z in zs]
+        # fixed on one side: the roots at −x are anchored, the fibres extend along +x over the sphere
+        obstacles = [Obstacle(SphereField((0.0, -R, 0.0), R), name="sphere")]
+        desc = (f"{F} horizontal fibres × {n} segments, {length * 100:g} cm, roots fixed at x = "
+                f"{-50 * length:g} cm, over a sphere R = {R * 100:g} cm centred under the midline "
+                f"(top 2 mm below the ribbon); friction {friction_mode}")
+        dur = 0.6 if duration is None else duration
+    elif name in ("sphere-helical", "terrain"):
+        F, n = n_fibres or 355, segments or 100
+        roots = _disc(F, 0.004, rng)
+        top = 0.12 if name == "sphere-helical" else 0.0
+        polys = [_helix(n + 1, length, 0.012, 0.008, rng.uniform(0, 2 * np.pi), (rx, top, rz))
+                 for rx, rz in roots]
+        if name == "sphere-helical":
+            R = 0.05
+            obstacles = [Obstacle(SphereField((0.015, -R, 0.0), R), name="sphere")]
+            desc = (f"{F} vertical helical fibres × {n} segments, {length * 100:g} cm, roots on a 4 mm disc "
+                    f"at y = {top * 100:g} cm (helix radius 1.2 cm, pitch 8 mm, rest shape straight), "
+                    f"sphere R = {R * 100:g} cm with its top at y = 0, offset 1.5 cm; friction {friction_mode}")
+        else:
+            fld, mesh = _terrain_field()
+            obstacles = [Obstacle(fld, name="terrain")]
+            desc = (f"{F} vertical helical fibres × {n} segments, roots at y = 0, onto a bumpy terrain (cosine "
+                    f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field 2 mm); friction {friction_mode}")
+        dur = 0.7 if duration is None else duration
+    elif name == "plane":
+        F, n = n_fibres or 250, segments or 100
+        alpha = np.deg2rad(22.5)
+        yz = _disc(F, 0.004, rng)
+        polys = [_helix(n + 1, length, 0.012, 0.01, rng.uniform(0, 2 * np.pi), (-0.05, 0.05 + a, b), vertical=False)
+                 for a, b in yz]
+        nrm = (np.sin(alpha), np.cos(alpha), 0.0)
+        obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), nrm), name="plane 22.5°")]
+        desc = (f"{F} horizontal helical fibres × {n} segments, roots fixed, above a 22.5° plane; "
+                f"friction {friction_mode}")
+        dur = 0.7 if duration is None else duration
+    else:  # head
+        import trimesh
+
+        from headsim.collide.fibre_scenes import scalp_roots
+        from headsim.data import head_path
+
+        F, n = n_fibres or 300, segments or 30
+        length = min(length, 0.15)
+        hm = trimesh.load(head_path(), process=False)
+        v, t = np.asarray(hm.vertices, float), np.asarray(hm.faces, np.int64)
+        roots, normals = scalp_roots(v, t, F, seed=seed)
+        fld = GridDistanceField.from_mesh(v, t, 0.003, band=0.012)
+        polys = []
+        for p0, nr in zip(roots, normals):
+            d = nr + np.array([0.0, -0.6, 0.0])
+            d /= np.linalg.norm(d)
+            polys.append(p0 + 3 * r * nr + np.linspace(0, length, n + 1)[:, None] * d)
+        obstacles = [Obstacle(fld, name="head")]
+        mesh = (v, t)
+        desc = (f"{len(roots)} fibres × {n} segments, {length * 100:g} cm, rooted on the bundled head's scalp, "
+                f"starting between the skin normal and straight down; head distance field 3 mm; friction {friction_mode}")
+        dur = 0.5 if duration is None else duration
+    nodes = np.concatenate(polys)
+    offsets = np.arange(0, len(nodes) + 1, polys[0].shape[0])
+    model, state = chain_model_from_polylines(nodes, offsets, radius=r, density=MASS_DENSITY.value,
+                                              young=MODULI_ROBBINS["bend"].value,
+                                              shear=MODULI_ROBBINS["torsion"].value, anchored=anchored,
+                                              rest_shape="straight", joint_damping=0.0)
+    opts = dict(friction=law)
+    opts.update(option_overrides)
+    n_steps = max(1, int(round(dur / dt)))
+    return DrapeScene(name, desc, model, state, obstacles, dt, n_steps, ChainOptions(**opts), mesh)
+
+
+def bounding_box(polylines: np.ndarray) -> tuple[np.ndarray, float]:
+    """Axis-aligned extent (3,) m and volume m³ of fibre polylines (Table 8.1's measure)."""
+    p = np.asarray(polylines).reshape(-1, 3)
+    ext = p.max(0) - p.min(0)
+    return ext, float(np.prod(ext))
+
+
+def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: int | None = None,
+              progress: Callable[[int, int], None] | None = None, fibre_loop: bool = False,
+              max_speed: float = 20.0) -> DrapeResult:
+    """Step the scene; record polylines every ``record_every`` steps and the per-step statistics.
+
+    Raises DivergenceError (never returns NaN) when a state is non-finite or a segment moves faster
+    than ``max_speed`` m/s (free fall from the scenes' heights stays below 2 m/s)."""
+    steps = scene.n_steps if n_steps is None else int(n_steps)
+    every = record_every or max(1, steps // 30)
+    solver = ChainSolver(scene.options, fibre_loop=fibre_loop)
+    state = scene.state
+    times, frames = [0.0], [polylines_from_state(scene.model, state)]
+    cols = {k: [] for k in ("step_time", "kinetic", "total_energy", "contacts", "fibre_contacts", "obstacle_contacts",
+                            "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps")}
+    secs: dict[str, float] = {}
+    for i in range(steps):
+        state = solver.step(scene.model, state, scene.dt, scene.obstacles)
+        st = solver.last_stats
+        vmax = float(np.sqrt((state.velocity**2).sum(1).max()))
+        if not vmax <= max_speed:
+            raise DivergenceError(f"{scene.name}: a segment moves at {vmax:.3g} m/s at t = {state.time:.4g} s "
+                                  f"(dt = {scene.dt:g} s); the simulation diverged — reduce dt or raise "
+                                  "qp_iterations / harmonisation_iterations")
+        cols["step_time"].append(st.time)
+        cols["kinetic"].append(st.kinetic_energy)
+        cols["total_energy"].append(st.total_energy)
+        for k in ("contacts", "fibre_contacts", "obstacle_contacts", "max_joint_gap", "max_penetration",
+                  "newton_iterations", "qp_sweeps"):
+            cols[k].append(getattr(st, k))
+        for k, v in st.seconds.items():
+            secs[k] = secs.get(k, 0.0) + v
+        if (i + 1) % every == 0 or i + 1 == steps:
+            times.append(state.time)
+            frames.append(polylines_from_state(scene.model, state))
+        if progress is not None:
+            progress(i + 1, steps)
+    return DrapeResult(np.array(times), np.array(frames), **{k: np.array(v) for k, v in cols.items()}, seconds=secs)
+
+
+def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render: bool = False,
+                progress: Callable[[int, int], None] | None = None) -> list[Path]:
+    """Write ``trajectory.npz``, ``vtk/frame_XXXX.vtu`` (polylines), ``energy_contacts.png``,
+    ``frames/frame_XXXX.png`` (matplotlib) and, with ``render``, path-traced ``rendered/`` frames."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import meshio
+
+    folder = Path(folder)
+    files = []
+    npz = folder / "trajectory.npz"
+    np.savez_compressed(npz, times=result.times, polylines=result.polylines, step_time=result.step_time,
+                        kinetic=result.kinetic, total_energy=result.total_energy, contacts=result.contacts,
+                        fibre_contacts=result.fibre_contacts, obstacle_contacts=result.obstacle_contacts,
+                        max_joint_gap=result.max_joint_gap, max_penetration=result.max_penetration,
+                        newton_iterations=result.newton_iterations, qp_sweeps=result.qp_sweeps,
+                        radius=scene.model.radius[0], dt=scene.dt)
+    files.append(npz)
+    (folder / "vtk").mkdir()
+    F, nn = result.polylines.shape[1:3]
+    seg = np.stack([np.arange(nn - 1), np.arange(1, nn)], 1)
+    cells = np.concatenate([seg + f * nn for f in range(F)])
+    for k in range(len(result.times)):
+        p = folder / "vtk" / f"frame_{k:04d}.vtu"
+        meshio.write(p, meshio.Mesh(result.polylines[k].reshape(-1, 3), [("line", cells)]), binary=True)
+        files.append(p)
+    fig, ax = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
+    ax[0].semilogy(result.step_time, np.maximum(result.kinetic, 1e-30), label="kinetic")
+    ax[0].set_ylabel("kinetic energy [J]")
+    ax[0].set_title(scene.description, fontsize=7)
+    ax[1].plot(result.step_time, result.fibre_contacts, label="fibre–fibre")
+    ax[1].plot(result.step_time, result.obstacle_contacts, label="fibre–obstacle")
+    ax[1].set_ylabel("active contacts")
+    ax[1].set_xlabel("t [s]")
+    ax[1].legend(fontsize=8)
+    fig.tight_layout()
+    p = folder / "energy_contacts.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    files.append(p)
+    (folder / "frames").mkdir()
+    allp = result.polylines.reshape(-1, 3)
+    lo, hi = allp.min(0), allp.max(0)
+    mid, span = 0.5 * (lo + hi), 0.55 * float((hi - lo).max()) + 1e-6
+    sub = max(1, F // 150)
+    for k in range(len(result.times)):
+        fig = plt.figure(figsize=(4.5, 4.5))
+        a3 = fig.add_subplot(projection="3d")
+        for q in result.polylines[k][::sub]:
+            a3.plot(q[:, 0], q[:, 2], q[:, 1], color="saddlebrown", lw=0.5)
+        a3.set_xlim(mid[0] - span, mid[0] + span)
+        a3.set_ylim(mid[2] - span, mid[2] + span)
+        a3.set_zlim(mid[1] - span, mid[1] + span)
+        a3.set_title(f"{scene.name}  t = {result.times[k]:.3f} s", fontsize=8)
+        p = folder / "frames" / f"frame_{k:04d}.png"
+        fig.savefig(p, dpi=80)
+        plt.close(fig)
+        files.append(p)
+    if render:
+        from headsim.hair.render.frames import render_frames
+
+        files += render_frames(list(result.polylines), folder / "rendered", radius=float(scene.model.radius[0]),
+                               progress=progress)
+    return files

@@ -1,0 +1,891 @@
+"""Rigid-segment fibres (kinematic chains) with Moreau midpoint time stepping, per-body contact
+projection and anisotropic friction (Sobottka 2008, ch. 8; Kaufman, Edmunds & Pai 2005).
+
+One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, then contacts):
+
+1. **Joints (Method I, Alg. 7).** From the saved t_i state, a Newton-type iteration finds the joint
+   impulses P_j = (p, L*) such that the trial integration over Δt (eqs. 8.78/8.80: x + Δt(v + Δt/(2m) f),
+   R ← exp(Δt ω̃) R) closes every point-joint gap (eq. 8.76); the bending/torsion spring rows
+   L* = Δt[R_k K (θ − θ°) + c ω_rel] (§8.5.3, K = (EI₁, EI₂, GJ)/ℓ, θ = log(R_kᵀR_l)) are part of the
+   same system and therefore implicit (unconditionally stable at Δt = 1 ms, where an explicit spring
+   of a 70 µm, 3 mm segment would need Δt < 0.1 ms). The Newton matrix is the first-order
+   (linearised K-matrix) Jacobian, block-tridiagonal per fibre, factorised once per step (chord
+   Newton); the residual is the exact nonlinear trial integration. The orientation term f° of (8.86)
+   is dropped as in the thesis.
+2. **Contacts (Alg. 6).** Half step q^{i+½} = q^i + ½Δt u^i (θ = 1 convention of the source, rotation
+   by the exponential map), u⁻ = u^i + Δt M⁻¹F (eq. 8.43; ``external_impulse="half"`` copies Alg. 6
+   literally: contacting bodies then get only half the external impulse), detection at q^{i+½}
+   (fibre–fibre: :class:`headsim.collide.FibreBVH`; obstacles: signed distance fields sampled at the
+   segment end points, iso-level ``level`` plus a tolerance band), persistence filter
+   n·(u⁻_A − u⁻_B) ≤ ‖g‖Δt (smooth contacts count as persistent, eq. 8.9; the tolerance keeps resting
+   contacts whose pre-impact velocities differ by round-off), then per body the normal QP
+   ``min ½‖u − u⁻‖²_M s.t. J u ≥ v_N`` in its dual by projected Gauss–Seidel on the Delassus matrix,
+   with v_N from both partners' pre-impact contact velocities weighted by their effective masses
+   (eqs. 8.67–8.69), the friction programme and the restitution law u = (1+ε)u⁺ − εu⁻ + u^f
+   (``contact_coupling="per-body"``, the seed's scheme). Later contact sweeps (``contact_sweeps`` > 1)
+   replace v_N by the partner's current normal velocity (a block-Jacobi pass over the bodies).
+   **Default** ``contact_coupling="coupled"``: the same per-contact normal rows and friction polygons
+   solved by one projected (nonlinear) Gauss–Seidel over all contacts with relative velocities and
+   equal and opposite impulses (Moreau–Jean NSCD), with the fibres' joints as bilateral rows in the same
+   sweeps. The seed's per-body projection cannot hold a stack: a body squeezed between a static obstacle
+   and a falling partner gets contradictory constraints (obstacle: v_n ≥ 0, partner: v_n ≤ −gΔt), and
+   crossed fibre layers sink through each other within a few hundred steps (measured, see the tests).
+3. **Harmonisation.** ``harmonisation_iterations`` > 1 repeats joints → contacts with the contact
+   stage's velocity change fed into the joint trial integration, so the joints close around the
+   projected motion; the contact stage is always last (non-penetration wins; the remaining joint gap
+   is corrected next step, "no cumulative error").
+4. Second half step q^{i+1} = q^{i+½} + ½Δt u^{i+1}.
+
+Gap handling (our additions, both stated): the normal bound is v_N − g/Δt for a separated pair
+with gap g > 0 inside the detection band (a speculative contact: it only acts if the pair would
+close the gap within a full step, i.e. by the next mid-step, where the next detection happens, so
+the unconstrained first half step cannot carry it into penetration; the band grows with each
+segment's speed, so discrete detection does not tunnel), and v_N + β·(−g)/(½Δt) for a penetration (β = ``penetration_recovery``), the latter
+as a split impulse: it moves the positions of the second half step but is not kept in the velocity.
+Later harmonisation passes update the gaps to first order with the contact points' motion.
+
+Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
+t₂ = n × t₁; the admissible tangential impulses are the polygon λ_α·conv{μ_β d_β}
+(V-representation, eq. 8.51) with generators on the elliptic limit curve of :class:`FrictionLaw`; the
+recommended QP objective ``min ½‖u⁺ + u^f‖²_M`` (maximal dissipation without overshoot) is solved by
+block Gauss–Seidel with exact 2-D solves; ``friction_objective="lp"`` is the seed's linear objective
+``min (u^f)ᵀ M u⁺`` (eq. 8.62) over the same set, solved by HiGHS (scipy.optimize.linprog) per body.
+
+Limitations: the gyroscopic term −ω × (Iω) is neglected and the world inertia is frozen over a step;
+contacts are points (no spin friction); per-body projection has no global consistency (see the
+stack test for the sag it leaves).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from headsim.errors import DivergenceError, ParameterError
+from headsim.solvers._kernels import chains as K
+
+__all__ = [
+    "FrictionLaw",
+    "Obstacle",
+    "ChainModel",
+    "ChainState",
+    "ChainOptions",
+    "StepStats",
+    "ChainSolver",
+    "chain_model_from_polylines",
+    "chain_state_from_polylines",
+    "polylines_from_state",
+    "kinetic_energy",
+    "potential_energy",
+    "spring_energy",
+    "joint_gaps",
+]
+
+STANDARD_GRAVITY = 9.80665
+
+
+# ------------------------------------------------------------------------------------------------
+# friction law
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FrictionLaw:
+    """Anisotropic Coulomb friction of a keratin fibre (Sobottka §8.3, Fig. 8.6).
+
+    mu_with : coefficient for a friction *force* along +t₁, i.e. the fibre sliding towards its root
+        relative to the partner (the partner moves root → tip: with the scales, low μ).
+    mu_against : force along −t₁ (fibre sliding towards its tip: against the scales, high μ).
+    mu_across : force along ±t₂ (across the fibre axis).
+    n_directions : number m of generators d_β (multiple of 4, ≥ 4); the generators are m evenly spaced
+        directions with μ_β on the limit curve made of four quarter-ellipses through the three
+        principal values (the secant polygon under-estimates friction between generators by at most
+        1 − cos(π/m)). m = 0: frictionless.
+    """
+
+    mu_with: float = 0.0
+    mu_against: float = 0.0
+    mu_across: float = 0.0
+    n_directions: int = 16
+
+    def __post_init__(self):
+        if self.n_directions != 0 and (self.n_directions < 4 or self.n_directions % 4):
+            raise ParameterError(f"n_directions must be 0 or a multiple of 4 (≥ 4), got {self.n_directions}")
+        mus = (self.mu_with, self.mu_against, self.mu_across)
+        if not all(np.isfinite(m) and m >= 0 for m in mus):
+            raise ParameterError(f"friction coefficients must be finite and ≥ 0, got {mus}")
+        if self.n_directions and min(mus) <= 0:
+            raise ParameterError("friction coefficients must be > 0 (use FrictionLaw.none() for no friction)")
+
+    @classmethod
+    def none(cls) -> "FrictionLaw":
+        return cls(0.0, 0.0, 0.0, 0)
+
+    @classmethod
+    def isotropic(cls, mu: float = 0.47, n_directions: int = 16) -> "FrictionLaw":
+        """μ = 0.47 is the isotropic value of Sobottka §8.6.5.2."""
+        return cls(mu, mu, mu, n_directions)
+
+    @property
+    def frictionless(self) -> bool:
+        return self.n_directions == 0
+
+    def generators(self) -> tuple[np.ndarray, np.ndarray]:
+        """(m,), (m,) float64: μ_β cos φ_β, μ_β sin φ_β of the generators (CCW in (t₁, t₂))."""
+        m = self.n_directions
+        if m == 0:
+            return np.zeros(0), np.zeros(0)
+        phi = 2 * np.pi * np.arange(m) / m
+        c, s = np.cos(phi), np.sin(phi)
+        a = np.where(c >= 0, self.mu_with, self.mu_against)
+        b = self.mu_across
+        rho = 1.0 / np.sqrt((c / a) ** 2 + (s / b) ** 2)
+        return np.ascontiguousarray(rho * c), np.ascontiguousarray(rho * s)
+
+    def coefficient(self, direction_angle: float) -> float:
+        """μ of the limit curve for a force at angle φ from t₁ (rad)."""
+        c, s = np.cos(direction_angle), np.sin(direction_angle)
+        a = self.mu_with if c >= 0 else self.mu_against
+        return float(1.0 / np.sqrt((c / a) ** 2 + (s / self.mu_across) ** 2))
+
+
+@dataclass(frozen=True, eq=False)
+class Obstacle:
+    """A static obstacle given by a signed distance field (Φ < 0 inside; ``headsim.collide``).
+
+    level : iso-level the fibres rest on, m (the seed's level-set offset, §8.6.5).
+    band : tolerance band beyond the fibre radius within which end points are reported, m
+        (None: the solver's ``contact_band`` × radius).
+    """
+
+    field: object
+    level: float = 0.0
+    band: float | None = None
+    name: str = "obstacle"
+
+
+# ------------------------------------------------------------------------------------------------
+# model and state
+# ------------------------------------------------------------------------------------------------
+def _ro(a, dtype=np.float64, shape=None, name="array"):
+    a = np.array(a, dtype=dtype, order="C")
+    if shape is not None and a.shape != shape:
+        raise ParameterError(f"{name} must have shape {shape}, got {a.shape}")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise ParameterError(f"{name} contains NaN or inf")
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class ChainModel:
+    """What a step never changes. S segments in F fibres (CSR ``segment_offsets``).
+
+    segment_offsets : (F + 1,) int64.
+    half_length : (S,) m; radius : (S,) m; mass : (S,) kg; inertia : (S, 3) kg m², body-frame
+        principal moments (d₁, d₂, d₃ = axis).
+    anchored : (F,) bool — root fixed to ``root_point`` (F, 3) m with frame ``root_frame`` (F, 3, 3).
+    joint_stiffness : (S, 3) N m/rad — (EI₁, EI₂, GJ)/ℓ of the inner joint of every segment.
+    rest_rotation : (S, 3) rad — rest relative rotation vector θ° of every inner joint (k frame).
+    joint_damping : (S,) N m s — viscous joint damping (0: none).
+    """
+
+    segment_offsets: np.ndarray
+    half_length: np.ndarray
+    radius: np.ndarray
+    mass: np.ndarray
+    inertia: np.ndarray
+    anchored: np.ndarray
+    root_point: np.ndarray
+    root_frame: np.ndarray
+    joint_stiffness: np.ndarray
+    rest_rotation: np.ndarray
+    joint_damping: np.ndarray
+
+    def __post_init__(self):
+        off = np.array(self.segment_offsets, np.int64)
+        if off.ndim != 1 or off.size < 2 or off[0] != 0 or (np.diff(off) < 1).any():
+            raise ParameterError("segment_offsets must start at 0 and give every fibre ≥ 1 segment")
+        S, F = int(off[-1]), off.size - 1
+        object.__setattr__(self, "segment_offsets", _ro(off, np.int64))
+        for name, shp in (("half_length", (S,)), ("radius", (S,)), ("mass", (S,)), ("inertia", (S, 3)),
+                          ("root_point", (F, 3)), ("root_frame", (F, 3, 3)), ("joint_stiffness", (S, 3)),
+                          ("rest_rotation", (S, 3)), ("joint_damping", (S,))):
+            object.__setattr__(self, name, _ro(getattr(self, name), shape=shp, name=name))
+        object.__setattr__(self, "anchored", _ro(self.anchored, np.bool_, (F,), "anchored"))
+        for name in ("half_length", "radius", "mass"):
+            if not (getattr(self, name) > 0).all():
+                raise ParameterError(f"{name} must be > 0")
+        if not (self.inertia > 0).all():
+            raise ParameterError("inertia must be > 0")
+        if (self.joint_stiffness < 0).any() or (self.joint_damping < 0).any():
+            raise ParameterError("joint stiffness and damping must be ≥ 0")
+
+    @property
+    def n_fibres(self) -> int:
+        return self.segment_offsets.size - 1
+
+    @property
+    def n_segments(self) -> int:
+        return int(self.segment_offsets[-1])
+
+    @property
+    def segment_fibre(self) -> np.ndarray:
+        return np.repeat(np.arange(self.n_fibres), np.diff(self.segment_offsets))
+
+    @property
+    def is_root(self) -> np.ndarray:
+        r = np.zeros(self.n_segments, bool)
+        r[self.segment_offsets[:-1]] = True
+        return r
+
+
+@dataclass(frozen=True, eq=False)
+class ChainState:
+    """position (S, 3) m (centres of mass); rotation (S, 3, 3) (columns d₁, d₂, d₃); velocity (S, 3) m/s;
+    angular_velocity (S, 3) rad/s (world frame); time s."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+    time: float = 0.0
+
+    def __post_init__(self):
+        S = len(np.asarray(self.position))
+        for name, shp in (("position", (S, 3)), ("rotation", (S, 3, 3)), ("velocity", (S, 3)),
+                          ("angular_velocity", (S, 3))):
+            a = np.ascontiguousarray(np.asarray(getattr(self, name), np.float64))
+            if a.shape != shp:
+                raise ParameterError(f"{name} must have shape {shp}, got {a.shape}")
+            if not np.isfinite(a).all():
+                raise DivergenceError(f"non-finite {name} at t = {self.time:.4g} s")
+            object.__setattr__(self, name, a)
+
+
+def _frames_along(nodes: np.ndarray) -> np.ndarray:
+    """(n−1, 3, 3) rotation matrices of the segments of one polyline, d₃ = tangent, d₁ parallel-transported."""
+    t = np.diff(nodes, axis=0)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    n = len(t)
+    R = np.empty((n, 3, 3))
+    helper = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    d1 = helper - (helper @ t[0]) * t[0]
+    d1 /= np.linalg.norm(d1)
+    for k in range(n):
+        if k:
+            d1 = d1 - (d1 @ t[k]) * t[k]
+            d1 /= np.linalg.norm(d1)
+        R[k, :, 0] = d1
+        R[k, :, 1] = np.cross(t[k], d1)
+        R[k, :, 2] = t[k]
+    return R
+
+
+def _log_so3_many(R: np.ndarray) -> np.ndarray:
+    """(n, 3) rotation vectors of (n, 3, 3) rotations (vectorised eq. 8.83; exact away from θ = π)."""
+    c = np.clip(0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
+    th = np.arccos(c)
+    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    s = np.sin(th)
+    f = np.where(th < 1e-6, 0.5, 0.5 * th / np.where(s > 1e-12, s, 1.0))
+    return v * f[:, None]
+
+
+def chain_model_from_polylines(nodes, fibre_offsets, *, radius: float = 35e-6, density: float = 1300.0,
+                               young: float = 3.89e9, shear: float | None = None, anchored=True,
+                               rest_shape: str = "straight", stiffness_scale: float = 1.0,
+                               joint_damping: float = 0.0, spherical_inertia: bool = True
+                               ) -> tuple[ChainModel, ChainState]:
+    """Kinematic chains from fibre polylines (nodes (N, 3) m, CSR ``fibre_offsets``), at rest.
+
+    Segments are cylinders of the given radius (m) and density (kg/m³): m = ρπr²ℓ,
+    I = (m(3r² + ℓ²)/12, same, m r²/2); with ``spherical_inertia`` (default) the axial moment is raised
+    to the transverse one. Then ω × Iω ≡ 0, so neglecting the gyroscopic term is exact and the
+    exponential-map rotation conserves the rotational energy; with the true axial moment (ℓ/r ≈ 100,
+    I₃/I₁ ≈ 1e-4) the explicit rotation update transfers energy between axial spin and tumbling and the
+    torsion spring is 10⁴ times stiffer relative to its inertia. The price: spin about the fibre's own
+    axis (rolling) is slowed by ≈ ℓ²/(6r²). Joint springs (EI₁, EI₂, GJ)/ℓ_j with EI = Eπr⁴/4,
+    GJ = Gπr⁴/2 (G = E/(2(1 + 0.49)) when not given) and ℓ_j the centre distance, times
+    ``stiffness_scale`` (the seed leaves the stiffness as a user parameter). ``rest_shape``:
+    ``"straight"`` (θ° = 0: a helix unwinds under gravity, as in the seed's reference scene) or
+    ``"initial"`` (the polylines are the rest shape). ``anchored``: bool or (F,) bool — root fixed at
+    the first node with the first segment's initial frame (a clamped, elastic root joint).
+    Returns the model and the state at rest (zero velocities).
+    """
+    x = np.asarray(nodes, np.float64)
+    off = np.asarray(fibre_offsets, np.int64)
+    F = off.size - 1
+    if x.ndim != 2 or x.shape[1] != 3 or off[0] != 0 or off[-1] != len(x) or (np.diff(off) < 2).any():
+        raise ParameterError("nodes must be (N, 3) with CSR fibre_offsets and ≥ 2 nodes per fibre")
+    if rest_shape not in ("straight", "initial"):
+        raise ParameterError(f"rest_shape must be 'straight' or 'initial', got {rest_shape!r}")
+    if not (radius > 0 and density > 0 and young > 0 and stiffness_scale >= 0 and joint_damping >= 0):
+        raise ParameterError("radius, density, young must be > 0; stiffness_scale, joint_damping ≥ 0")
+    G = young / (2 * 1.49) if shear is None else float(shear)
+    seg_off = off - np.arange(F + 1)
+    S = int(seg_off[-1])
+    pos = np.empty((S, 3))
+    rot = np.empty((S, 3, 3))
+    half = np.empty(S)
+    for f in range(F):
+        p = x[off[f]:off[f + 1]]
+        L = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        if not (L > 0).all():
+            raise ParameterError(f"fibre {f} has a zero-length segment")
+        a, b = seg_off[f], seg_off[f + 1]
+        pos[a:b] = 0.5 * (p[1:] + p[:-1])
+        rot[a:b] = _frames_along(p)
+        half[a:b] = 0.5 * L
+    r = np.full(S, float(radius))
+    length = 2 * half
+    mass = density * np.pi * r**2 * length
+    i_perp = mass * (3 * r**2 + length**2) / 12
+    i_axis = i_perp if spherical_inertia else 0.5 * mass * r**2
+    inertia = np.stack([i_perp, i_perp, i_axis], 1)
+    anch = np.broadcast_to(np.asarray(anchored, bool), (F,)).copy()
+    is_root = np.zeros(S, bool)
+    is_root[seg_off[:-1]] = True
+    prev = np.arange(S) - 1
+    lj = np.where(is_root, 2 * half, half + half[np.maximum(prev, 0)])
+    EI = young * np.pi * radius**4 / 4
+    GJ = G * np.pi * radius**4 / 2
+    Kj = stiffness_scale * np.stack([EI / lj, EI / lj, GJ / lj], axis=1)
+    root_frame = rot[seg_off[:-1]].copy()
+    root_point = pos[seg_off[:-1]] - half[seg_off[:-1], None] * rot[seg_off[:-1], :, 2]
+    rest = np.zeros((S, 3))
+    if rest_shape == "initial":
+        Rk = np.where(is_root[:, None, None], root_frame[np.repeat(np.arange(F), np.diff(seg_off))],
+                      rot[np.maximum(prev, 0)])
+        rest = _log_so3_many(np.einsum("sji,sjk->sik", Rk, rot))
+    model = ChainModel(seg_off, half, r, mass, inertia, anch, root_point, root_frame, Kj, rest,
+                       np.full(S, float(joint_damping)))
+    state = ChainState(pos, rot, np.zeros((S, 3)), np.zeros((S, 3)), 0.0)
+    return model, state
+
+
+def chain_state_from_polylines(model: ChainModel, nodes) -> ChainState:
+    """State at rest whose segments run along the polylines (same CSR layout as the model)."""
+    x = np.asarray(nodes, np.float64)
+    F = model.n_fibres
+    off = model.segment_offsets + np.arange(F + 1)
+    pos = np.empty((model.n_segments, 3))
+    rot = np.empty((model.n_segments, 3, 3))
+    for f in range(F):
+        p = x[off[f]:off[f + 1]]
+        a, b = model.segment_offsets[f], model.segment_offsets[f + 1]
+        pos[a:b] = 0.5 * (p[1:] + p[:-1])
+        rot[a:b] = _frames_along(p)
+    return ChainState(pos, rot, np.zeros_like(pos), np.zeros_like(pos))
+
+
+def polylines_from_state(model: ChainModel, state: ChainState) -> np.ndarray:
+    """(F, n+1, 3) node polylines for fibres of equal segment count n (root node, then every segment's
+    outer end), m. Raises for fibres of different lengths."""
+    n = np.diff(model.segment_offsets)
+    if (n != n[0]).any():
+        raise ParameterError("polylines_from_state needs fibres of equal segment counts")
+    d3 = state.rotation[:, :, 2]
+    tips = state.position + model.half_length[:, None] * d3
+    roots = state.position[model.segment_offsets[:-1]] - (model.half_length[:, None] * d3)[model.segment_offsets[:-1]]
+    out = np.empty((model.n_fibres, n[0] + 1, 3))
+    out[:, 0] = roots
+    out[:, 1:] = tips.reshape(model.n_fibres, n[0], 3)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# energies and joint gaps
+# ------------------------------------------------------------------------------------------------
+def _inv_inertia_world(model: ChainModel, R: np.ndarray) -> np.ndarray:
+    return np.einsum("sac,sc,sbc->sab", R, 1.0 / model.inertia, R)
+
+
+def kinetic_energy(model: ChainModel, state: ChainState) -> float:
+    """½ Σ (m v² + ωᵀ I_w ω), J."""
+    Iw = np.einsum("sac,sc,sbc->sab", state.rotation, model.inertia, state.rotation)
+    rot = np.einsum("sa,sab,sb->s", state.angular_velocity, Iw, state.angular_velocity)
+    return float(0.5 * (model.mass * (state.velocity**2).sum(1)).sum() + 0.5 * rot.sum())
+
+
+def potential_energy(model: ChainModel, state: ChainState, gravity=(0.0, -STANDARD_GRAVITY, 0.0)) -> float:
+    """−Σ m gᵀx, J."""
+    return float(-(model.mass * (state.position @ np.asarray(gravity, float))).sum())
+
+
+def _joint_frames(model: ChainModel, state: ChainState):
+    S = model.n_segments
+    is_root = model.is_root
+    prev = np.maximum(np.arange(S) - 1, 0)
+    fib = model.segment_fibre
+    Rk = np.where(is_root[:, None, None], model.root_frame[fib], state.rotation[prev])
+    active = ~is_root | model.anchored[fib]
+    return Rk, active, prev, is_root, fib
+
+
+def spring_energy(model: ChainModel, state: ChainState) -> float:
+    """½ Σ_j Σ_c K_c (θ_c − θ°_c)², J (θ = log(R_kᵀ R_l) of every active joint)."""
+    Rk, active, *_ = _joint_frames(model, state)
+    th = _log_so3_many(np.einsum("sji,sjk->sik", Rk, state.rotation))
+    e = 0.5 * (model.joint_stiffness * (th - model.rest_rotation) ** 2).sum(1)
+    return float(e[active].sum())
+
+
+def joint_gaps(model: ChainModel, state: ChainState) -> np.ndarray:
+    """(S,) m: gap norm ‖d‖ of every segment's inner joint (eq. 8.76; 0 for free roots)."""
+    _, active, prev, is_root, fib = _joint_frames(model, state)
+    d3 = state.rotation[:, :, 2]
+    inner = state.position - model.half_length[:, None] * d3
+    outer_prev = state.position[prev] + model.half_length[prev, None] * d3[prev]
+    pk = np.where(is_root[:, None], model.root_point[fib], outer_prev)
+    g = np.linalg.norm(pk - inner, axis=1)
+    g[~active] = 0.0
+    return g
+
+
+# ------------------------------------------------------------------------------------------------
+# options, stats, solver
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ChainOptions:
+    """Algorithm options of :class:`ChainSolver` (SI units).
+
+    gravity : (3,) m/s². restitution : ε ∈ [0, 1] (default 0, as in all seed examples).
+    friction : :class:`FrictionLaw` (default: isotropic μ = 0.47).
+    friction_objective : ``"qp"`` (recommended, Kaufman-style maximal dissipation) or ``"lp"`` (seed's
+        linear objective, eq. 8.62, solved by HiGHS).
+    normal_impulse : ``"dual"`` (λ_α of QP #1) or ``"projected"`` (eq. 8.27) as the friction bound.
+    external_impulse : ``"full"`` (eq. 8.43) or ``"half"`` (Alg. 6 literally).
+    harmonisation_iterations : joints → contacts passes per step (1–3 in the seed).
+    contact_sweeps : per-body projection passes (≥ 2: later passes use the partners' current velocity).
+    joint_tolerance : m, Newton stop on the max joint gap of the trial state; max_newton : iterations.
+    qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s).
+    contact_band : detection band beyond contact as a fraction of the radius (fibre–fibre and default
+        obstacles); speculative_speed : extra detection margin speed·Δt, m/s.
+    penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step; the push-out is
+        applied to the positions only (split impulse: a second contact solve whose velocity is not kept),
+        so it adds no kinetic energy (``split_recovery=False``: the push-out is kept as velocity).
+    fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
+    contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
+        constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
+        velocities and equal and opposite impulses (Moreau–Jean NSCD; no sag-through in stacks).
+    parallel_threshold : segments from which the Numba-parallel kernels are used (serial below: the
+        thread start-up costs more than it saves on small scenes).
+    """
+
+    gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
+    restitution: float = 0.0
+    friction: FrictionLaw = field(default_factory=FrictionLaw.isotropic)
+    friction_objective: str = "qp"
+    normal_impulse: str = "dual"
+    external_impulse: str = "full"
+    harmonisation_iterations: int = 2
+    contact_sweeps: int = 2
+    joint_tolerance: float = 1e-9
+    max_newton: int = 8
+    qp_iterations: int = 60
+    qp_tolerance: float = 1e-9
+    contact_band: float = 0.5
+    speculative_speed: float = 0.05
+    penetration_recovery: float = 0.2
+    fibre_contacts: bool = True
+    contact_coupling: str = "coupled"
+    split_recovery: bool = True
+    parallel_threshold: int = 2000
+
+    def __post_init__(self):
+        if not 0.0 <= self.restitution <= 1.0:
+            raise ParameterError(f"restitution must be in [0, 1], got {self.restitution}")
+        if self.friction_objective not in ("qp", "lp"):
+            raise ParameterError("friction_objective must be 'qp' or 'lp'")
+        if self.normal_impulse not in ("dual", "projected"):
+            raise ParameterError("normal_impulse must be 'dual' or 'projected'")
+        if self.external_impulse not in ("full", "half"):
+            raise ParameterError("external_impulse must be 'full' or 'half'")
+        if self.harmonisation_iterations < 1 or self.contact_sweeps < 1 or self.max_newton < 1:
+            raise ParameterError("harmonisation_iterations, contact_sweeps and max_newton must be ≥ 1")
+        if not (self.contact_band >= 0 and self.speculative_speed >= 0 and 0 <= self.penetration_recovery <= 1):
+            raise ParameterError("contact_band, speculative_speed ≥ 0 and penetration_recovery in [0, 1]")
+        if self.contact_coupling not in ("per-body", "coupled"):
+            raise ParameterError("contact_coupling must be 'per-body' (seed) or 'coupled' (Gauss–Seidel over contacts)")
+        if not isinstance(self.friction, FrictionLaw):
+            raise ParameterError("friction must be a FrictionLaw")
+
+
+@dataclass
+class StepStats:
+    """Per-step instrumentation (§4 feature 12 of the digest)."""
+
+    time: float = 0.0
+    kinetic_energy: float = 0.0
+    potential_energy: float = 0.0
+    spring_energy: float = 0.0
+    max_joint_gap: float = 0.0
+    max_penetration: float = 0.0
+    contacts: int = 0
+    fibre_contacts: int = 0
+    obstacle_contacts: int = 0
+    newton_iterations: int = 0
+    qp_sweeps: int = 0
+    harmonisation_iterations: int = 0
+    seconds: dict = field(default_factory=dict)
+
+    @property
+    def total_energy(self) -> float:
+        return self.kinetic_energy + self.potential_energy + self.spring_energy
+
+
+@dataclass
+class _Rows:
+    body: np.ndarray
+    partner: np.ndarray
+    normal: np.ndarray
+    lever: np.ndarray
+    partner_lever: np.ndarray
+    gap: np.ndarray
+    obstacle: np.ndarray
+    primary: np.ndarray
+
+
+class ChainSolver:
+    """Moreau midpoint stepper for kinematic chains (see the module docstring for the algorithm).
+
+    ``step(model, state, dt, obstacles)`` returns the new state; ``last_stats`` holds its
+    :class:`StepStats`. ``fibre_loop=True`` runs the joint and contact kernels one fibre at a time
+    from Python (the seed's serial order; same results) — the benchmark's baseline.
+    """
+
+    def __init__(self, options: ChainOptions = ChainOptions(), *, fibre_loop: bool = False):
+        self.options = options
+        self.fibre_loop = fibre_loop
+        self.last_stats = StepStats()
+        self._bvh = None  # rebuilt every step: its capsule radii carry each segment's speculative margin
+        self._speed = None
+        self._mu = options.friction.generators()
+
+    # -- joints ----------------------------------------------------------------------------------
+    def _joints(self, model, x, R, v, w, dt, dx_extra, dth_extra):
+        o = self.options
+        F = model.n_fibres
+        v_out = np.empty_like(v)
+        w_out = np.empty_like(w)
+        its = np.zeros(F, np.int64)
+        gaps = np.zeros(F)
+        g = np.asarray(o.gravity, float)
+        args = (model.segment_offsets, model.anchored, x, R, v, w, model.mass, model.inertia, model.half_length,
+                model.root_point, model.root_frame, float(dt), g, dx_extra, dth_extra, model.joint_stiffness,
+                model.rest_rotation, model.joint_damping, float(o.joint_tolerance), int(o.max_newton))
+        if self.fibre_loop:
+            for f in range(F):
+                its[f], gaps[f] = K.correct_fibre_joints(f, *args, v_out, w_out)
+        elif model.n_segments >= self.options.parallel_threshold:
+            K.correct_joints_batch(np.arange(F, dtype=np.int64), *args, v_out, w_out, its, gaps)
+        else:
+            K.correct_joints_serial(np.arange(F, dtype=np.int64), *args, v_out, w_out, its, gaps)
+        return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
+
+    # -- detection ---------------------------------------------------------------------------------
+    def _detect(self, model, x, R, dt, obstacles) -> _Rows:
+        o = self.options
+        d3 = R[:, :, 2]
+        h = model.half_length
+        r = model.radius
+        margin = o.speculative_speed * dt
+        parts = []
+        # obstacles: segment end points (Sobottka §8.6.5: end points suffice at this segment length)
+        if obstacles:
+            ends = np.concatenate([x - h[:, None] * d3, x + h[:, None] * d3])
+            seg = np.concatenate([np.arange(model.n_segments)] * 2)
+            # speculative margin per end point from its own speed (obstacles are cheap to over-detect)
+            vend = np.concatenate([self._speed, self._speed]) if self._speed is not None else 0.0
+            for ob in obstacles:
+                band = (o.contact_band * r[seg] if ob.band is None else ob.band) + margin + 1.5 * vend * dt
+                phi = ob.field.distance(ends) - ob.level
+                hit = np.nonzero(phi < r[seg] + band)[0]
+                if len(hit):
+                    n = ob.field.normal(ends[hit])
+                    ok = np.linalg.norm(n, axis=1) > 0.5
+                    hit, n = hit[ok], n[ok]
+                    s = seg[hit]
+                    lever = ends[hit] - r[s, None] * n - x[s]
+                    parts.append(_Rows(s, np.full(len(s), -1), n, lever, np.zeros_like(n), phi[hit] - r[s],
+                                       np.ones(len(s), bool), np.ones(len(s), bool)))
+        if o.fibre_contacts and model.n_segments > 1:
+            from headsim.collide import FibreBVH, FibreSet
+
+            F = model.n_fibres
+            so = model.segment_offsets
+            nodes = np.empty((model.n_segments + F, 3))
+            node_of_outer = np.arange(model.n_segments) + model.segment_fibre + 1
+            nodes[node_of_outer] = x + h[:, None] * d3
+            nodes[so[:-1] + np.arange(F)] = x[so[:-1]] - h[so[:-1], None] * d3[so[:-1]]
+            # per-segment detection radius: band plus a speculative margin from the segment's own speed
+            spd = self._speed if self._speed is not None else np.zeros(model.n_segments)
+            rdet = r * (1.0 + 0.5 * o.contact_band) + 0.5 * margin + 0.75 * spd * dt
+            fs = FibreSet(nodes, so + np.arange(F + 1), rdet)
+            self._bvh = FibreBVH(fs, "aabb", "spatial")
+            pairs, params = self._bvh.self_contact_pairs()
+            if len(pairs):
+                a, b = pairs[:, 0], pairs[:, 1]
+                ca = x[a] + ((2 * params[:, 0] - 1) * h[a])[:, None] * d3[a]
+                cb = x[b] + ((2 * params[:, 1] - 1) * h[b])[:, None] * d3[b]
+                dv = ca - cb
+                dist = np.linalg.norm(dv, axis=1)
+                n = np.empty_like(dv)
+                ok = dist > 1e-12
+                n[ok] = dv[ok] / dist[ok, None]
+                if (~ok).any():
+                    c = np.cross(d3[a[~ok]], d3[b[~ok]])
+                    cn = np.linalg.norm(c, axis=1, keepdims=True)
+                    n[~ok] = np.where(cn > 1e-12, c / np.maximum(cn, 1e-300), [0.0, 1.0, 0.0])
+                gap = dist - r[a] - r[b]
+                keep = gap < 0.5 * o.contact_band * (r[a] + r[b]) + margin + 0.75 * (spd[a] + spd[b]) * dt
+                a, b, ca, cb, n, gap = a[keep], b[keep], ca[keep], cb[keep], n[keep], gap[keep]
+                pa = ca - r[a, None] * n
+                pb = cb + r[b, None] * n
+                z = np.zeros(len(a), bool)
+                parts.append(_Rows(a, b, n, pa - x[a], pb - x[b], gap, z, ~z))
+                parts.append(_Rows(b, a, -n, pb - x[b], pa - x[a], gap, z, z))
+        if not parts:
+            z = np.zeros((0, 3))
+            return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
+                         np.zeros(0, bool))
+        return _Rows(*[np.concatenate([getattr(p, k) for p in parts]) for k in _Rows.__dataclass_fields__])
+
+    # -- contacts ----------------------------------------------------------------------------------
+    def _targets(self, rows, gaps, beta, u, u_pre, model, Iwi, dt, sweep):
+        """Lower bounds v_N of J u per row (eqs. 8.67–8.69 plus the gap terms of the module notes)."""
+        o = self.options
+        n = rows.normal
+        b = rows.partner
+        vn = np.zeros(len(n))
+        fib = ~rows.obstacle
+        if fib.any():
+            bb = b[fib]
+            src = u_pre if sweep == 0 else u
+            ub = src[bb, :3] + np.cross(src[bb, 3:], rows.partner_lever[fib])
+            if sweep == 0:
+                aa = rows.body[fib]
+                ua = u_pre[aa, :3] + np.cross(u_pre[aa, 3:], rows.lever[fib])
+                rna = np.cross(rows.lever[fib], n[fib])
+                rnb = np.cross(rows.partner_lever[fib], n[fib])
+                ma = 1.0 / (1.0 / model.mass[aa] + np.einsum("ka,kab,kb->k", rna, Iwi[aa], rna))  # eq. 8.68
+                mb = 1.0 / (1.0 / model.mass[bb] + np.einsum("ka,kab,kb->k", rnb, Iwi[bb], rnb))
+                vn[fib] = ((ma[:, None] * ua + mb[:, None] * ub) / (ma + mb)[:, None] * n[fib]).sum(1)  # eq. 8.67
+            else:
+                vn[fib] = (ub * n[fib]).sum(1)
+        corr = np.where(gaps > 0, -gaps / dt, -beta * gaps / (0.5 * dt))
+        return vn + corr
+
+    def _project(self, rows, order, row_off, bodies, u_minus, targets, model, R, lam):
+        o = self.options
+        mu_c, mu_s = self._mu
+        u_out = u_minus.copy()
+        sweeps = np.zeros(len(bodies), np.int64)
+        nrm = rows.normal[order]
+        lev = rows.lever[order]
+        tg = np.ascontiguousarray(targets[order])
+        lam_sorted = np.zeros(len(order))
+        eps = float(o.restitution)
+        mode = 0 if o.normal_impulse == "dual" else 1
+        lp = o.friction_objective == "lp" and not o.friction.frictionless
+        mc = np.zeros(0) if lp else mu_c
+        ms = np.zeros(0) if lp else mu_s
+        if self.fibre_loop:
+            fib = model.segment_fibre[bodies]
+            for f in np.unique(fib):
+                sel = np.nonzero(fib == f)[0]
+                for q in sel:
+                    s = bodies[q]
+                    a, b = row_off[q], row_off[q + 1]
+                    Iwi = K.world_inverse_inertia(R[s], model.inertia[s])
+                    uo = np.zeros(6)
+                    lo = np.zeros(b - a)
+                    sweeps[q] = K.project_body(u_minus[s], model.mass[s], Iwi, nrm[a:b], lev[a:b],
+                                               np.ascontiguousarray(R[s, :, 2]), tg[a:b], mc, ms, eps, mode,
+                                               o.qp_iterations, o.qp_tolerance, uo, lo)
+                    u_out[s] = uo
+                    lam_sorted[a:b] = lo
+        else:
+            kern = K.project_bodies_batch if model.n_segments >= o.parallel_threshold else K.project_bodies_serial
+            kern(bodies, row_off, u_minus, model.mass, R, model.inertia, nrm, lev, tg, mc, ms,
+                                   eps, mode, o.qp_iterations, o.qp_tolerance, u_out, lam_sorted, sweeps)
+        if lp:
+            from headsim.solvers.chains_lp import lp_friction
+
+            u_out = lp_friction(bodies, row_off, u_minus, u_out, model, R, nrm, lev, tg, lam_sorted, mu_c, mu_s, o)
+        lam[order] = lam_sorted
+        return u_out, int(sweeps.max(initial=0))
+
+    def _joint_rows(self, model, rows, x_mid, R_mid, dt):
+        """Bilateral joint rows of every fibre with a contact: bodies k (−1: root anchor), l, levers, and the
+        target relative anchor velocity −d_mid/(½Δt) that closes the mid-step gap by the step's end."""
+        fib = model.segment_fibre
+        touched = np.zeros(model.n_fibres, bool)
+        touched[fib[rows.body]] = True
+        seg = np.nonzero(touched[fib])[0]
+        is_root = model.is_root[seg]
+        keep = ~is_root | model.anchored[fib[seg]]
+        seg, is_root = seg[keep], is_root[keep]
+        d3 = R_mid[:, :, 2]
+        h = model.half_length
+        k = np.where(is_root, -1, seg - 1)
+        rl = -h[seg, None] * d3[seg]
+        kk = np.maximum(k, 0)
+        rk = np.where(is_root[:, None], 0.0, h[kk, None] * d3[kk])
+        pk = np.where(is_root[:, None], model.root_point[fib[seg]], x_mid[kk] + rk)
+        d = pk - (x_mid[seg] + rl)
+        target = -d / (0.5 * dt)
+        return (k.astype(np.int64), seg.astype(np.int64), np.ascontiguousarray(rk), np.ascontiguousarray(rl),
+                np.ascontiguousarray(target))
+
+    def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
+                  x_mid=None):
+        """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6)."""
+        o = self.options
+        if not len(bodies):
+            return u_minus
+        if o.contact_coupling == "coupled":
+            u = np.ascontiguousarray(u_minus.copy())
+            pr = np.nonzero(rows.primary)[0]
+            gp = gaps[pr]
+            tg = np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt))
+            lam_p = np.zeros(len(pr))
+            mc, ms = self._mu
+            jk, jl, jrk, jrl, jt = self._joint_rows(model, rows, x_mid, R_mid, dt)
+            sw = K.project_coupled(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
+                                   np.ascontiguousarray(rows.lever[pr]), np.ascontiguousarray(rows.partner_lever[pr]),
+                                   np.ascontiguousarray(tg), u, model.mass, R_mid, model.inertia, mc, ms,
+                                   float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p,
+                                   jk, jl, jrk, jrl, jt)
+            lam[:] = 0.0
+            lam[pr] = lam_p
+            sweeps_box[0] = max(sweeps_box[0], int(sw))
+            return u
+        u = u_minus
+        for sweep in range(o.contact_sweeps):
+            targets = self._targets(rows, gaps, beta, u, u_minus, model, Iwi, dt, sweep)
+            u, sw = self._project(rows, order, row_off, bodies, u_minus, targets, model, R_mid, lam)
+            sweeps_box[0] = max(sweeps_box[0], sw)
+        return u
+
+    # -- step ----------------------------------------------------------------------------------------
+    def step(self, model: ChainModel, state: ChainState, dt: float, obstacles=()) -> ChainState:
+        """Advance by Δt (s); obstacles: sequence of :class:`Obstacle`. Raises DivergenceError on
+        non-finite results."""
+        if not dt > 0:
+            raise ParameterError(f"dt must be > 0 s, got {dt}")
+        o = self.options
+        t_all = time.perf_counter()
+        secs = {"joints": 0.0, "detection": 0.0, "contacts": 0.0, "integration": 0.0}
+        S = model.n_segments
+        half_step = K.half_step if S >= o.parallel_threshold else K.half_step_serial
+        x, R, v, w = state.position, state.rotation, state.velocity, state.angular_velocity
+        g = np.asarray(o.gravity, float)
+        dv_ext = (dt if o.external_impulse == "full" else 0.5 * dt) * g
+        dx_extra = np.zeros((S, 3))
+        dth_extra = np.zeros((S, 3))
+        x_mid = np.empty_like(x)
+        R_mid = np.empty_like(R)
+        rows = None
+        newton = 0
+        sweeps_box = [0]
+        u_end = None
+        for it in range(o.harmonisation_iterations):
+            t0 = time.perf_counter()
+            vJ, wJ, nit, _ = self._joints(model, x, R, v, w, dt, dx_extra, dth_extra)
+            newton = max(newton, nit)
+            t1 = time.perf_counter()
+            secs["joints"] += t1 - t0
+            w_mid = np.empty_like(wJ)
+            half_step(x, R, vJ, wJ, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
+            u_minus = np.concatenate([vJ + dv_ext, w_mid], axis=1)
+            t2 = time.perf_counter()
+            secs["integration"] += t2 - t1
+            if rows is None:
+                self._speed = np.linalg.norm(u_minus[:, :3], axis=1) + model.half_length * np.linalg.norm(
+                    u_minus[:, 3:], axis=1)
+                rows = self._detect(model, x_mid, R_mid, dt, obstacles)
+                secs["detection"] += time.perf_counter() - t2
+                t2 = time.perf_counter()
+                Iwi = _inv_inertia_world(model, R_mid)
+                # persistence filter (eq. 8.9): approaching or smooth contacts only
+                ua = u_minus[rows.body, :3] + np.cross(u_minus[rows.body, 3:], rows.lever)
+                pb = np.maximum(rows.partner, 0)
+                ub = np.where(rows.obstacle[:, None], 0.0,
+                              u_minus[pb, :3] + np.cross(u_minus[pb, 3:], rows.partner_lever))
+                # relative normal velocities below one step of gravity count as smooth (persistent):
+                # bodies resting on each other differ by round-off-sized amounts in their pre-impact
+                # velocities, which must not switch resting contacts off
+                smooth = np.linalg.norm(g) * dt
+                keep = ((ua - ub) * rows.normal).sum(1) <= smooth
+                rows = _Rows(*[getattr(rows, k)[keep] for k in _Rows.__dataclass_fields__])
+                # per body: fibre rows first, obstacle rows last (a static obstacle wins a conflict)
+                order = np.lexsort((rows.obstacle, rows.body))
+                bodies, starts = np.unique(rows.body[order], return_index=True)
+                row_off = np.append(starts, len(order)).astype(np.int64)
+                bodies = bodies.astype(np.int64)
+                lam = np.zeros(len(rows.body))
+            if it == 0:
+                gaps = rows.gap.copy()
+            else:  # contact points move with the bodies: first-order gap change of the new mid state
+                dxa = x_mid[rows.body] - x_mid0[rows.body]
+                dpa = dxa + np.cross(0.5 * dt * (w_mid - w_mid0)[rows.body], rows.lever)
+                pb = np.maximum(rows.partner, 0)
+                dpb = np.where(rows.obstacle[:, None], 0.0,
+                               x_mid[pb] - x_mid0[pb] + np.cross(0.5 * dt * (w_mid - w_mid0)[pb], rows.partner_lever))
+                gaps = rows.gap + ((dpa - dpb) * rows.normal).sum(1)
+            if it == 0:
+                x_mid0, w_mid0 = x_mid.copy(), w_mid.copy()
+            u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
+                                   sweeps_box, x_mid)
+            u_pos = u_vel
+            if o.penetration_recovery > 0 and (gaps < 0).any():
+                # split impulse: the penetration push-out moves the positions but is not kept as velocity
+                u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
+                                       R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid)
+            u_end = u_vel if o.split_recovery else u_pos
+            secs["contacts"] += time.perf_counter() - t2
+            if it + 1 < o.harmonisation_iterations:
+                dc = u_vel - np.concatenate([vJ + dt * g, w_mid], axis=1)
+                dx_extra = 0.5 * dt * dc[:, :3]
+                dth_extra = 0.5 * dt * dc[:, 3:]
+        sweeps_max = sweeps_box[0]
+        t3 = time.perf_counter()
+        x_new = np.empty_like(x)
+        R_new = np.empty_like(R)
+        w_pos = np.empty((S, 3))
+        half_step(x_mid, R_mid, np.ascontiguousarray(u_pos[:, :3]), np.ascontiguousarray(u_pos[:, 3:]), model.inertia,
+                  0.5 * dt, x_new, R_new, w_pos)
+        v_new = np.ascontiguousarray(u_end[:, :3])
+        if u_pos is u_end:
+            w_new = w_pos
+        else:  # ω of the kept velocity, mapped to the new frame by the same angular-momentum rule
+            Lw = np.einsum("sac,sc,sbc,sb->sa", R_mid, model.inertia, R_mid, u_end[:, 3:])
+            w_new = np.einsum("sac,sc,sbc,sb->sa", R_new, 1.0 / model.inertia, R_new, Lw)
+        secs["integration"] += time.perf_counter() - t3
+        if not (np.isfinite(x_new).all() and np.isfinite(v_new).all() and np.isfinite(w_new).all()):
+            raise DivergenceError(f"non-finite chain state at t = {state.time + dt:.4g} s (dt = {dt:g} s); "
+                                  "reduce dt")
+        new = ChainState(x_new, R_new, v_new, w_new, state.time + dt)
+        st = StepStats(time=new.time, seconds=secs, newton_iterations=newton, qp_sweeps=sweeps_max,
+                       harmonisation_iterations=o.harmonisation_iterations)
+        st.kinetic_energy = kinetic_energy(model, new)
+        st.potential_energy = potential_energy(model, new, g)
+        st.spring_energy = spring_energy(model, new)
+        st.max_joint_gap = float(joint_gaps(model, new).max(initial=0.0))
+        active = (lam > 0) & (rows.primary | (o.contact_coupling == "per-body")) if len(lam) else np.zeros(0, bool)
+        st.contacts = int(active.sum())
+        st.obstacle_contacts = int((active & rows.obstacle).sum())
+        st.fibre_contacts = st.contacts - st.obstacle_contacts
+        st.max_penetration = float(max(0.0, -rows.gap.min(initial=0.0)))
+        if obstacles:
+            d3 = R_new[:, :, 2]
+            ends = np.concatenate([x_new - model.half_length[:, None] * d3, x_new + model.half_length[:, None] * d3])
+            rr = np.concatenate([model.radius, model.radius])
+            for ob in obstacles:
+                st.max_penetration = max(st.max_penetration,
+                                         float(np.max(rr - (ob.field.distance(ends) - ob.level), initial=0.0)))
+        secs["total"] = time.perf_counter() - t_all
+        self.last_stats = st
+        return new

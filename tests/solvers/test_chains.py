@@ -1,0 +1,273 @@
+"""Rigid-segment fibres with Moreau contact response (headsim.solvers.chains; Sobottka 2008 ch. 8).
+
+Physics checks: a block (one capsule segment) on a 22.5° plane against a = g(sin α − μ cos α)
+(Appendix A.2), sticking for tan α < μ, the anisotropic direction dependence, a resting stack over
+1,000 steps, no tunnelling of a 70 µm fibre dropped at Δt = 1 ms, energy that never increases at
+ε = 0, momentum conservation of the joint impulses, and the small QPs against scipy references.
+"""
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from headsim.collide import PlaneField
+from headsim.errors import ParameterError
+from headsim.solvers import _kernels
+from headsim.solvers.chains import (
+    STANDARD_GRAVITY,
+    ChainOptions,
+    ChainSolver,
+    FrictionLaw,
+    Obstacle,
+    chain_model_from_polylines,
+    joint_gaps,
+    kinetic_energy,
+    potential_energy,
+)
+
+K = _kernels.chains
+R_FIBRE = 35e-6
+ALPHA = np.deg2rad(22.5)
+
+
+def _block_on_incline(law, axis_sign=1.0, steps=150, **kw):
+    """One free capsule (3 mm, 70 µm) resting on the 22.5° plane with its axis along the fall line."""
+    nrm = np.array([0.0, np.cos(ALPHA), np.sin(ALPHA)])
+    down = np.array([0.0, -np.sin(ALPHA), np.cos(ALPHA)])
+    c = nrm * R_FIBRE
+    L = 3e-3
+    nodes = np.array([c - axis_sign * down * L / 2, c + axis_sign * down * L / 2])
+    model, state = chain_model_from_polylines(nodes, [0, 2], radius=R_FIBRE, anchored=False)
+    solver = ChainSolver(ChainOptions(friction=law, fibre_contacts=False, **kw))
+    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), tuple(nrm)))]
+    v = []
+    for _ in range(steps):
+        state = solver.step(model, state, 1e-3, obstacles)
+        v.append(state.velocity[0] @ down)
+    t = 1e-3 * np.arange(1, steps + 1)
+    acc = np.polyfit(t[20:], np.array(v)[20:], 1)[0]
+    return acc, np.array(v), state
+
+
+@pytest.mark.parametrize("mu", [0.1, 0.3])
+def test_block_slides_with_coulomb_acceleration(mu):
+    acc, _, _ = _block_on_incline(FrictionLaw.isotropic(mu))
+    expected = STANDARD_GRAVITY * (np.sin(ALPHA) - mu * np.cos(ALPHA))
+    assert acc == pytest.approx(expected, rel=0.01)
+
+
+def test_block_slides_frictionless_and_lp_objective_matches_sliding():
+    acc, _, _ = _block_on_incline(FrictionLaw.none())
+    assert acc == pytest.approx(STANDARD_GRAVITY * np.sin(ALPHA), rel=0.01)
+    acc_lp, _, _ = _block_on_incline(FrictionLaw.isotropic(0.2), friction_objective="lp", steps=60)
+    assert acc_lp == pytest.approx(STANDARD_GRAVITY * (np.sin(ALPHA) - 0.2 * np.cos(ALPHA)), rel=0.01)
+
+
+def test_block_sticks_when_tan_alpha_below_mu():
+    assert np.tan(ALPHA) < 0.47
+    _, v, state = _block_on_incline(FrictionLaw.isotropic(0.47))
+    assert np.abs(v).max() < 1e-6  # m/s after 150 steps of 1 ms (free sliding would reach 0.08 m/s)
+
+
+def test_anisotropic_friction_slides_one_way_and_sticks_the_other():
+    law = FrictionLaw(mu_with=0.15, mu_against=0.6, mu_across=0.3)
+    # axis (root → tip) downhill: sliding towards the tip, force against the scales (0.6 > tan α): sticks
+    _, v_tip, _ = _block_on_incline(law, axis_sign=1.0)
+    assert np.abs(v_tip).max() < 1e-6
+    # axis uphill: sliding towards the root, with the scales (0.15 < tan α): slides
+    acc, _, _ = _block_on_incline(law, axis_sign=-1.0)
+    assert acc == pytest.approx(STANDARD_GRAVITY * (np.sin(ALPHA) - 0.15 * np.cos(ALPHA)), rel=0.01)
+
+
+def _capsule_stack(layers=4, per_layer=3, L=3e-3):
+    polys = []
+    for lay in range(layers):
+        y = R_FIBRE + 2 * R_FIBRE * lay
+        for k in range(per_layer):
+            off = (k - (per_layer - 1) / 2) * L / per_layer
+            a = np.array([-L / 2, y, off]) if lay % 2 == 0 else np.array([off, y, -L / 2])
+            b = np.array([L / 2, y, off]) if lay % 2 == 0 else np.array([off, y, L / 2])
+            polys.append(np.stack([a, b]))
+    nodes = np.concatenate(polys)
+    return chain_model_from_polylines(nodes, np.arange(0, len(nodes) + 1, 2), radius=R_FIBRE, anchored=False)
+
+
+def test_resting_stack_keeps_its_height_and_energy_never_increases():
+    """Four crossed layers of 70 µm × 3 mm fibres on a plane, 1,000 steps of 1 ms, ε = 0.
+
+    Tolerance: the top layer may sink by at most 1 % of the fibre radius (0.35 µm) over the run; the
+    total energy may rise by at most round-off (1e-6 of its initial value) in any step.
+    """
+    model, state = _capsule_stack()
+    solver = ChainSolver(ChainOptions())
+    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    y0 = state.position[:, 1].copy()
+    energy = [kinetic_energy(model, state) + potential_energy(model, state)]
+    for _ in range(1000):
+        state = solver.step(model, state, 1e-3, obstacles)
+        energy.append(solver.last_stats.total_energy)
+    sink = (y0 - state.position[:, 1]).reshape(4, 3).mean(1)
+    assert sink.max() < 0.01 * R_FIBRE
+    assert np.diff(energy).max() <= 1e-6 * abs(energy[0])
+    assert solver.last_stats.fibre_contacts >= 27  # 9 crossings per layer interface are still active
+
+
+def test_no_tunnelling_of_a_dropped_fibre_at_1ms():
+    """A 70 µm fibre dropped from 5 mm onto a crossing fibre lying on the plane: at impact it moves
+    0.31 m/s, i.e. 4.5 diameters per 1 ms step; it must come to rest on top, not below."""
+    L = 3e-3
+    low = np.array([[-L / 2, R_FIBRE, 0.0], [L / 2, R_FIBRE, 0.0]])
+    high = np.array([[0.0, 5e-3, -L / 2], [0.0, 5e-3, L / 2]])
+    model, state = chain_model_from_polylines(np.concatenate([low, high]), [0, 2, 4], radius=R_FIBRE, anchored=False)
+    solver = ChainSolver(ChainOptions(friction=FrictionLaw.isotropic(0.47)))
+    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    for _ in range(100):
+        state = solver.step(model, state, 1e-3, obstacles)
+    assert state.position[1, 1] > 3 * R_FIBRE * 0.97
+    assert abs(state.velocity[1, 1]) < 1e-3
+
+
+def test_energy_never_increases_for_inelastic_impacts():
+    """Four crossed capsules dropped from 0.5–1.4 mm onto the plane and onto each other, ε = 0:
+    E_kin + E_pot never rises by more than round-off (1e-9 of the initial energy per step).
+
+    The capsules cross at 60–90°; near-parallel pairs are avoided on purpose: ``FibreContacts``
+    reports one closest-point pair per segment pair, so a line contact between parallel segments is
+    held at one point only, the other end dips in, and its push-out adds potential energy."""
+    L = 2e-3
+    polys = []
+    for k in range(4):
+        ang = k * np.pi / 3 + 0.2
+        d = 0.5 * L * np.array([np.cos(ang), 0.0, np.sin(ang)])
+        c = np.array([0.05e-3 * k, 0.5e-3 + 0.3e-3 * k, 0.0])
+        polys.append(np.stack([c - d, c + d]))
+    nodes = np.concatenate(polys)
+    model, state = chain_model_from_polylines(nodes, [0, 2, 4, 6, 8], radius=R_FIBRE, anchored=False)
+    # the projection scheme itself (no split-impulse push-out, which lifts penetrating bodies and so
+    # adds potential energy by design)
+    solver = ChainSolver(ChainOptions(restitution=0.0, penetration_recovery=0.0))
+    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    e = [kinetic_energy(model, state) + potential_energy(model, state)]
+    contacts = 0
+    for _ in range(150):
+        state = solver.step(model, state, 1e-3, obstacles)
+        e.append(solver.last_stats.total_energy)
+        contacts = max(contacts, solver.last_stats.fibre_contacts)
+    e = np.array(e)
+    assert contacts >= 2  # the capsules did land on each other
+    assert np.diff(e).max() <= 1e-9 * abs(e[0])
+    assert e[-1] < 0.5 * e[0]
+
+
+def test_free_chain_joint_impulses_conserve_momentum_and_close_the_joints():
+    """A free, spinning 6-segment chain: joint impulses are internal, so Σ m v changes by m g Δt only."""
+    n = 6
+    nodes = np.stack([np.linspace(0, 6e-3, n + 1), np.zeros(n + 1), np.zeros(n + 1)], 1)
+    model, state = chain_model_from_polylines(nodes, [0, n + 1], radius=R_FIBRE, anchored=False,
+                                              rest_shape="straight")
+    rng = np.random.default_rng(1)
+    state = type(state)(state.position, state.rotation, rng.normal(0, 0.02, (n, 3)), rng.normal(0, 5.0, (n, 3)))
+    solver = ChainSolver(ChainOptions(fibre_contacts=False))
+    p0 = (model.mass[:, None] * state.velocity).sum(0)
+    for _ in range(20):
+        state = solver.step(model, state, 1e-3)
+        assert solver.last_stats.max_joint_gap < 1e-8
+    p1 = (model.mass[:, None] * state.velocity).sum(0)
+    expected = p0 + model.mass.sum() * 20e-3 * np.array([0.0, -STANDARD_GRAVITY, 0.0])
+    np.testing.assert_allclose(p1, expected, atol=1e-9 * model.mass.sum())
+
+
+def test_anchored_chain_keeps_its_root_and_loses_energy():
+    """Root-anchored horizontal fibre released under gravity: the joint gaps stay closed, the root stays
+    put and the implicit joint springs dissipate: after 100 steps the total energy is below its start.
+    (The springs are *linearly* implicit, so single steps may gain a little — we allow 1 % of the
+    energy exchanged with gravity per step and report it; an explicit spring at this Δt would blow up.)"""
+    n = 10
+    nodes = np.stack([np.linspace(0, 3e-2, n + 1), np.zeros(n + 1), np.zeros(n + 1)], 1)
+    model, state = chain_model_from_polylines(nodes, [0, n + 1], radius=R_FIBRE, anchored=True)
+    solver = ChainSolver(ChainOptions(fibre_contacts=False))
+    e = [kinetic_energy(model, state) + potential_energy(model, state)]
+    for _ in range(100):
+        state = solver.step(model, state, 1e-3)
+        e.append(solver.last_stats.total_energy)
+    assert joint_gaps(model, state).max() < 1e-8
+    e = np.array(e)
+    assert e[-1] < e[0]
+    assert np.diff(e).max() <= 0.01 * np.abs(e - e[0]).max()
+    assert state.position[-1, 1] < -1e-3  # it did bend down
+
+
+def test_friction_generators_lie_on_the_limit_curve():
+    law = FrictionLaw(0.13, 0.61, 0.21, n_directions=16)
+    c, s = law.generators()
+    mu = np.hypot(c, s)
+    assert mu[0] == pytest.approx(0.13) and mu[8] == pytest.approx(0.61)
+    assert mu[4] == pytest.approx(0.21) and mu[12] == pytest.approx(0.21)
+    # convex polygon, CCW
+    e = np.roll(np.stack([c, s], 1), -1, axis=0) - np.stack([c, s], 1)
+    cross = e[:, 0] * np.roll(e[:, 1], -1) - e[:, 1] * np.roll(e[:, 0], -1)
+    assert (cross > 0).all()
+    iso = np.hypot(*FrictionLaw.isotropic().generators())
+    np.testing.assert_allclose(iso, 0.47)
+    with pytest.raises(ParameterError):
+        FrictionLaw(0.1, 0.2, 0.3, n_directions=6)
+
+
+def test_polygon_qp_matches_scipy():
+    rng = np.random.default_rng(3)
+    c, s = FrictionLaw(0.13, 0.61, 0.21).generators()
+    for _ in range(20):
+        A = rng.normal(size=(2, 2))
+        B = A @ A.T + 0.1 * np.eye(2)
+        q = rng.normal(size=2) * 2
+        lam = rng.uniform(0.5, 2)
+        px, py = lam * c, lam * s
+        got = np.array(K._polygon_qp(B, q, px, py, len(c)))
+        verts = np.stack([px, py], 1)
+        edges = np.roll(verts, -1, 0) - verts
+        cons = [{"type": "ineq", "fun": (lambda f, i=i: edges[i, 0] * (f[1] - verts[i, 1]) - edges[i, 1] * (f[0] - verts[i, 0]))}
+                for i in range(len(c))]
+        ref = minimize(lambda f: 0.5 * f @ B @ f + f @ q, np.zeros(2), constraints=cons, method="SLSQP",
+                       options={"ftol": 1e-14, "maxiter": 500}).x
+        assert 0.5 * got @ B @ got + got @ q <= 0.5 * ref @ B @ ref + ref @ q + 1e-9
+
+
+def test_normal_projection_matches_primal_qp():
+    """QP #1 in its dual (projected Gauss–Seidel) solves the primal min ½‖u − u⁻‖²_M s.t. J u ≥ v_N:
+    its result satisfies the primal KKT conditions (an exact optimality certificate for this convex QP)."""
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        nc = rng.integers(1, 5)
+        m = 1e-8
+        I = np.array([1e-14, 1.2e-14, 0.8e-14])
+        Rm = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        Rm *= np.sign(np.linalg.det(Rm))
+        Iwi = Rm @ np.diag(1 / I) @ Rm.T
+        n = rng.normal(size=(nc, 3))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        lev = rng.normal(size=(nc, 3)) * 1e-3
+        u_minus = rng.normal(size=6) * np.array([1e-2] * 3 + [1.0] * 3)
+        target = rng.normal(size=nc) * 1e-3
+        out = np.zeros(6)
+        lam = np.zeros(nc)
+        K.project_body(u_minus, m, Iwi, n, lev, Rm[:, 2].copy(), target, np.zeros(0), np.zeros(0), 0.0, 0, 5000,
+                       1e-14, out, lam)
+        J = np.concatenate([n, np.cross(lev, n)], axis=1)
+        M = np.zeros((6, 6))
+        M[:3, :3] = m * np.eye(3)
+        M[3:, 3:] = np.linalg.inv(Iwi)
+        # KKT of the primal: u − u⁻ = M⁻¹Jᵀλ, λ ≥ 0, J u ≥ v_N, λ ⊥ (J u − v_N)
+        vs = np.abs(J @ u_minus).max() + np.abs(target).max()
+        np.testing.assert_allclose(out - u_minus, np.linalg.solve(M, J.T @ lam), atol=1e-12 * np.abs(u_minus).max())
+        assert (lam >= 0).all()
+        assert (J @ out - target).min() > -1e-9 * vs
+        assert np.abs(lam * (J @ out - target)).max() <= 1e-9 * vs * np.abs(lam).max() + 1e-300
+
+
+def test_options_are_validated():
+    with pytest.raises(ParameterError):
+        ChainOptions(restitution=1.5)
+    with pytest.raises(ParameterError):
+        ChainOptions(friction_objective="simplex")
+    with pytest.raises(ParameterError):
+        ChainOptions(contact_coupling="global")
