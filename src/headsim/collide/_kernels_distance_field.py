@@ -9,32 +9,37 @@ import numpy as np
 from numba import njit, prange
 
 
+@njit(cache=True, inline="always")
+def trilinear_at(values, origin, spacing, x, y, z, outside):
+    """Trilinear interpolation of the 8 cell corners (Sobottka §7.2.1) at one point (x, y, z), m;
+    ``outside`` for a point off the grid. Inlined into every kernel that samples a grid field."""
+    nx, ny, nz = values.shape
+    fx = (x - origin[0]) / spacing
+    fy = (y - origin[1]) / spacing
+    fz = (z - origin[2]) / spacing
+    if not (0.0 <= fx <= nx - 1 and 0.0 <= fy <= ny - 1 and 0.0 <= fz <= nz - 1):
+        return outside
+    i = min(int(fx), nx - 2)
+    j = min(int(fy), ny - 2)
+    k = min(int(fz), nz - 2)
+    tx, ty, tz = fx - i, fy - j, fz - k
+    c00 = values[i, j, k] * (1 - tx) + values[i + 1, j, k] * tx
+    c10 = values[i, j + 1, k] * (1 - tx) + values[i + 1, j + 1, k] * tx
+    c01 = values[i, j, k + 1] * (1 - tx) + values[i + 1, j, k + 1] * tx
+    c11 = values[i, j + 1, k + 1] * (1 - tx) + values[i + 1, j + 1, k + 1] * tx
+    c0 = c00 * (1 - ty) + c10 * ty
+    c1 = c01 * (1 - ty) + c11 * ty
+    return c0 * (1 - tz) + c1 * tz
+
+
 @njit(cache=True, parallel=True)
 def trilinear(values, origin, spacing, points, outside, out):
     """Trilinear interpolation of the 8 cell corners (Sobottka §7.2.1) at ``points`` (n, 3) into ``out`` (n,).
 
     Points outside the grid get ``outside``.
     """
-    nx, ny, nz = values.shape
-    inv = 1.0 / spacing
     for p in prange(points.shape[0]):
-        fx = (points[p, 0] - origin[0]) * inv
-        fy = (points[p, 1] - origin[1]) * inv
-        fz = (points[p, 2] - origin[2]) * inv
-        if not (0.0 <= fx <= nx - 1 and 0.0 <= fy <= ny - 1 and 0.0 <= fz <= nz - 1):
-            out[p] = outside
-            continue
-        i = min(int(fx), nx - 2)
-        j = min(int(fy), ny - 2)
-        k = min(int(fz), nz - 2)
-        tx, ty, tz = fx - i, fy - j, fz - k
-        c00 = values[i, j, k] * (1 - tx) + values[i + 1, j, k] * tx
-        c10 = values[i, j + 1, k] * (1 - tx) + values[i + 1, j + 1, k] * tx
-        c01 = values[i, j, k + 1] * (1 - tx) + values[i + 1, j, k + 1] * tx
-        c11 = values[i, j + 1, k + 1] * (1 - tx) + values[i + 1, j + 1, k + 1] * tx
-        c0 = c00 * (1 - ty) + c10 * ty
-        c1 = c01 * (1 - ty) + c11 * ty
-        out[p] = c0 * (1 - tz) + c1 * tz
+        out[p] = trilinear_at(values, origin, spacing, points[p, 0], points[p, 1], points[p, 2], outside)
 
 
 @njit(cache=True)

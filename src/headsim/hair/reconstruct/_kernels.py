@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from headsim.collide._kernels_distance_field import trilinear_at as _tri
 from headsim.solvers._kernels.rods_statics import pai_integrate
 
 # layout of the scalar parameter vector ``par`` of the guide objective
@@ -23,27 +24,6 @@ P_DS = 12                                    # segment length, m
 P_RHO_SCALE = 13                             # 1 / mean density expected if all strands were spread evenly
 P_HEAD_FAR, P_HAIR_FAR = 14, 15              # value of the two fields outside their grids (+far, m)
 N_PAR = 16
-
-
-@njit(cache=True, inline="always")
-def _tri(values, origin, h, x, y, z, outside):
-    nx, ny, nz = values.shape
-    fx = (x - origin[0]) / h
-    fy = (y - origin[1]) / h
-    fz = (z - origin[2]) / h
-    if not (0.0 <= fx <= nx - 1 and 0.0 <= fy <= ny - 1 and 0.0 <= fz <= nz - 1):
-        return outside
-    i = min(int(fx), nx - 2)
-    j = min(int(fy), ny - 2)
-    k = min(int(fz), nz - 2)
-    tx, ty, tz = fx - i, fy - j, fz - k
-    c00 = values[i, j, k] * (1 - tx) + values[i + 1, j, k] * tx
-    c10 = values[i, j + 1, k] * (1 - tx) + values[i + 1, j + 1, k] * tx
-    c01 = values[i, j, k + 1] * (1 - tx) + values[i + 1, j, k + 1] * tx
-    c11 = values[i, j + 1, k + 1] * (1 - tx) + values[i + 1, j + 1, k + 1] * tx
-    c0 = c00 * (1 - ty) + c10 * ty
-    c1 = c01 * (1 - ty) + c11 * ty
-    return c0 * (1 - tz) + c1 * tz
 
 
 @njit(cache=True)
