@@ -74,6 +74,8 @@ EXACT = True
 UPDATE_TOL = 2e-4
 #: Newton iterations per contact update before a fit is declared not converging
 MAXIT = 40
+#: per-dof residual force tolerance of the Newton solve, times the strap force
+FORCE_TOL = 1e-7
 #: Effective homogeneous facial soft-tissue modulus, Pa (module doc).
 TISSUE_MODULUS = 30e3
 TISSUE_POISSON = 0.49
@@ -292,6 +294,8 @@ class FitResult:
     mask_displacement : m, translation of the shell along the approach axis from first contact
     state : FitState for warm starts
     newton_iterations, contact_updates : solver effort; seconds : wall time of the solve
+    mode : "nonlinear" (:func:`problem_fit`) or "condensed" (:mod:`headsim.mask.condensed`; its
+        ``newton_iterations`` are active-set iterations)
     """
 
     force: float
@@ -311,6 +315,7 @@ class FitResult:
     newton_iterations: int
     contact_updates: int
     seconds: float
+    mode: str = "nonlinear"
 
     @property
     def sealed(self) -> bool:
@@ -336,6 +341,7 @@ class FitResult:
             "newton_iterations": self.newton_iterations,
             "contact_updates": self.contact_updates,
             "solve_seconds": self.seconds,
+            "solver_mode": self.mode,
         }
 
 
@@ -399,12 +405,23 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
     # shell tets only translate rigidly with the driver: their material does not enter the answer
     model = fem_from_tetmesh(combined, {REGION_TISSUE: tissue_mat, REGION_CUSHION: cushion_mat,
                                         REGION_SHELL: cushion_mat})
+    e_cushion = cm.youngs_modulus
+    if placed.tet_modulus is not None:
+        # per-section modulus of a homogenised membrane cushion (MaskModel.tet_modulus)
+        from dataclasses import replace as _replace
+
+        e_tet = np.concatenate([np.full(tissue.n_tets, options.tissue_modulus), placed.tet_modulus])
+        nu = np.where(tet_region == REGION_TISSUE, options.tissue_poisson, cm.poisson_ratio)
+        mu = e_tet / (2.0 * (1.0 + nu))
+        lam = e_tet * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+        model = _replace(model, shear_modulus=mu, lame_lambda=lam)
+        e_cushion = float(np.median(placed.tet_modulus[mt.tet_region != REGION_SHELL]))
     skin = np.arange(layer.n_skin, dtype=np.int64)
     skin_tri = layer.skin_triangles
     areas = surface_vertex_areas(nt, skin_tri, tissue.vertices)[skin]
     edge = np.linalg.norm(np.diff(sub.vertices[sub.edges], axis=1)[:, 0], axis=1)
     h = float(np.median(edge))
-    e_soft = min(options.tissue_modulus, cm.youngs_modulus)
+    e_soft = min(options.tissue_modulus, e_cushion)
     penalty = options.penalty_factor * e_soft / h
     airway = airway_vertices(face, lm, placed.kind)
     return FitProblem(
@@ -529,7 +546,7 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float):
     opts = QuasiStaticOptions(newton=NewtonOptions(relative_tolerance=1e-10, try_exact_hessian=EXACT,
                                                    max_iterations=MAXIT),
                               max_contact_updates=p.options.max_contact_updates,
-                              force_tolerance=1e-7 * force_scale)
+                              force_tolerance=FORCE_TOL * force_scale)
     res = solve_quasi_static(p.model, [contact, attach], drivers, initial_positions=x0, initial_drivers=u0,
                              options=opts)
     return res, contact

@@ -116,16 +116,28 @@ class SearchResult:
 
 
 def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions(),
-                     progress: Callable[[int, int, str], None] | None = None) -> SearchResult:
+                     progress: Callable[[int, int, str], None] | None = None, mode: str = "nonlinear") -> SearchResult:
     """Search the least strap force that seals (module doc).
 
     problem : from :func:`headsim.mask.fit.prepare_fit`
     progress : called as progress(solves_done, max_solves, message) after each fit
+    mode : "nonlinear" (every fit by :func:`headsim.mask.fit.problem_fit`) or "condensed" (the linear
+        condensed model of :mod:`headsim.mask.condensed`, condensed once at the start; its time counts)
     """
     if options.maximum > MAX_STRAP_FORCE:
         raise ParameterError(f"maximum force must be <= {MAX_STRAP_FORCE:g} N")
+    if mode not in ("nonlinear", "condensed"):
+        raise ParameterError(f"mode must be 'nonlinear' or 'condensed', got {mode!r}")
     t0 = time.perf_counter()
     fits: dict[float, FitResult] = {}
+    fitter = problem_fit
+    if mode == "condensed":
+        from headsim.mask.condensed import condense_fit, condensed_fit
+
+        condensed = condense_fit(problem)
+
+        def fitter(_problem, f, warm_start=None):
+            return condensed_fit(condensed, f)
 
     failed: list[str] = []
 
@@ -135,7 +147,7 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
             near = min(fits, key=lambda g: abs(g - f))
             warm = fits[near].state
         try:
-            r = problem_fit(problem, f, warm_start=warm)
+            r = fitter(problem, f, warm_start=warm)
         except ConvergenceError as e:
             if not fits:
                 raise
