@@ -115,6 +115,7 @@ class FitOptions:
     max_contact_updates: int = 12
     balance_tolerance: float = 0.01
     rotate: bool = True
+    contact_direction: str = "normal"
 
     def __post_init__(self):
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
@@ -128,6 +129,8 @@ class FitOptions:
             raise ParameterError(f"tissue_layers must be an integer >= 1, got {self.tissue_layers}")
         if self.crop_margin is not None and not (np.isfinite(self.crop_margin) and self.crop_margin > 0):
             raise ParameterError(f"crop_margin must be > 0 m or None, got {self.crop_margin}")
+        if self.contact_direction not in ("normal", "axial"):
+            raise ParameterError(f"contact_direction must be 'normal' or 'axial', got {self.contact_direction!r}")
         if self.placement not in ("auto", "as-is"):
             raise ParameterError(f"placement must be 'auto' or 'as-is', got {self.placement!r}")
         if not (np.isfinite(self.standoff) and 0 <= self.standoff <= 0.1):
@@ -477,6 +480,8 @@ def _axial_update(c, x, u) -> bool:
     nrm = np.zeros((n_s, 3))
     has = ok.copy()
     tri[ok], wts[ok], nrm[ok] = tris[hits.triangle[ok]], hits.barycentric[ok], tri_n[ok]
+    if getattr(c, "axial_direction", False):
+        nrm[ok] = a          # gap and force along the approach axis (FitOptions.contact_direction)
     old_gaps = None
     if len(c.active):
         old_gaps = np.full(n_s, np.inf)
@@ -528,6 +533,7 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
     contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty)
     contact.axis_of_approach = p.approach
+    contact.axial_direction = p.options.contact_direction == "axial"
     contact._tree = None
     contact.tolerance = tolerance
     attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, shell_modes(p, rest_shell))

@@ -35,7 +35,17 @@ Parametric design (all lengths for size M; S and L scale the whole mask by 0.9 a
   triangles × outline samples → prisms → 3 tets each (Dompierre et al. 1999), conforming and
   positively oriented; deterministic.
 
-Material: see :data:`CUSHION_SILICONE` and :func:`effective_cushion_modulus`.
+Material: see :data:`CUSHION_SILICONE` and :func:`effective_cushion_modulus`. ``make_mask(...,
+cushion="membrane")`` builds the hollow-membrane homogenisation instead (:data:`MEMBRANE_CUSHION`,
+per-tet modulus :func:`membrane_cushion_modulus` from each section's own height: 2-49 kPa for
+nasal-M). Measured on the bundled face it is far too soft to stand for a real membrane cushion: the
+condensed linear model moves the cushion 18 mm at 5 N (more than its height) and the nonlinear fit
+inverts cushion tets at 3 N -- a wall-bending homogenisation has no axial stiffness before the walls
+buckle and no undercushion to bottom out on. A 3 mm, 1.11 MPa wall clamped at the shell buckles at
+P_cr = pi^2 D / (4 H^2) = 20 N/m per wall for H = 20 mm (D = E t^3 / (12 (1 - nu^2))), i.e. about
+7 N on the 17 cm nasal outline with two walls: a real membrane cushion works at a near-constant
+force after buckling, which no single linear or neo-Hookean solid reproduces. The solid cushion
+stays the default; the membrane option is kept for that comparison.
 """
 
 from __future__ import annotations

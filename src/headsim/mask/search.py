@@ -11,8 +11,10 @@ airway), assumed monotone in the force (a mask that seals at F seals at every la
    rel_tol x F_hi)``. The answer is F_hi (a force that seals, at most the tolerance above the least
    one); the pressure map at F_hi is reported.
 
-A fit that does not converge (after the first) ends the search with status "solve-failed" and the
-bracket found so far, reported as such. Every fit is warm-started from the converged fit of the nearest force already solved
+A fit that does not converge while bracketing upwards is retried halfway between the largest leaking
+force and the failed one (the seal may lie below the force where the model fails), until that
+interval is within the tolerance; otherwise a fit that does not converge (after the first) ends the
+search with status "solve-failed" and the bracket found so far, reported as such. Every fit is warm-started from the converged fit of the nearest force already solved
 (:class:`headsim.mask.fit.FitState`); a failed warm start falls back to a cold one. Every solved force
 also gives a point of the force -> contact area and force -> peak pressure curves.
 """
@@ -180,19 +182,28 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
                 break
     else:
         lo = f
-        while len(fits) < options.max_solves:
+        ceiling = None        # smallest force whose solve failed while bracketing upwards
+        while len(fits) + len(failed) < options.max_solves:
             if f >= options.maximum:
                 status = "no-seal"
                 break
-            f = min(2.0 * f, options.maximum)
-            r = solve(f)
+            nxt = min(2.0 * f, options.maximum) if ceiling is None else 0.5 * (lo + ceiling)
+            r = solve(nxt)
             if r is None:
-                status = "solve-failed"
-                break
+                # the solve fails at nxt: look for the seal below it (module doc, step 1)
+                ceiling = nxt
+                if ceiling - lo <= max(options.abs_tol, options.rel_tol * ceiling):
+                    status = "solve-failed"
+                    break
+                continue
+            f = nxt
             if r.sealed:
                 hi = f
                 break
             lo = f
+            if ceiling is not None and ceiling - lo <= max(options.abs_tol, options.rel_tol * ceiling):
+                status = "solve-failed"
+                break
         else:
             if hi is None:
                 status = "no-seal" if f >= options.maximum else "max-solves"
