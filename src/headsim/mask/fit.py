@@ -27,7 +27,12 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   contacts about to form are already in the Newton system; penalty kappa = ``penalty_factor`` x
   E_soft / h (Pa per m of penetration; h the median skin edge). Contact pressure at a skin vertex =
   kappa x penetration (Pa), force = pressure x vertex area. One-sided: cushion vertices are not
-  kept out of the skin (both meshes have 3-5 mm spacing).
+  kept out of the skin (both meshes have 3-5 mm spacing). ``contact_direction``: "normal" (default;
+  gap and force along the cushion triangle's normal, frictionless) or "axial" (gap and force along
+  the approach axis, the seed's heightmap collision axis, Heinze §3.3.1; on an inclined cushion
+  flank this needs a tangential force, i.e. it stands for sticking friction where the flank's
+  inclination is below the friction angle; the condensed mode, :mod:`headsim.mask.condensed`,
+  always works this way).
 - **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton with the exact Hessian where it
   gives descent, line search; contact planes refreshed in an outer loop), force-controlled from
   first contact. A warm start (:class:`FitState` of an earlier fit on the same
@@ -99,6 +104,7 @@ class FitOptions:
     balance_tolerance : relative mismatch of contact force and strap force above which the fit is
         refused (ConvergenceError)
     rotate : let the mask pitch and yaw about the strap point (moment balance), else translate only
+    contact_direction : "normal" or "axial" (module doc, Contact)
     """
 
     tissue_modulus: float = TISSUE_MODULUS
