@@ -27,20 +27,29 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   contacts about to form are already in the Newton system; penalty kappa = ``penalty_factor`` x
   E_soft / h (Pa per m of penetration; h the median skin edge). Contact pressure at a skin vertex =
   kappa x penetration (Pa), force = pressure x vertex area. One-sided: cushion vertices are not
-  kept out of the skin (both meshes have 3-5 mm spacing). ``contact_direction``: "normal" (default;
-  gap and force along the cushion triangle's normal, frictionless) or "axial" (gap and force along
-  the approach axis, the seed's heightmap collision axis, Heinze §3.3.1; on an inclined cushion
-  flank this needs a tangential force, i.e. it stands for sticking friction where the flank's
-  inclination is below the friction angle; the condensed mode, :mod:`headsim.mask.condensed`,
-  always works this way).
+  kept out of the skin (both meshes have 3-5 mm spacing). Gap and force along the cushion
+  triangle's normal, frictionless. (Gap and force along the approach axis instead -- the seed's
+  heightmap axis, as the condensed mode does -- was tried: the Newton solve did not converge at 15 N
+  on the coarse test problem, |g| = 1.05 N after 80 iterations, so it is not offered.)
 - **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton with the exact Hessian where it
   gives descent, line search; contact planes refreshed in an outer loop), force-controlled from
   first contact. A warm start (:class:`FitState` of an earlier fit on the same
   :class:`FitProblem`) starts from that equilibrium; when it fails, a cold start is tried. The fit
   is refused (ConvergenceError) when neither converges, when tets invert, or when the contact force
   does not balance the strap force within ``balance_tolerance``.
-- **Limits**: the mask's pitch and yaw are linearised rotations (about 2 % stretch of the shell at
-  12 deg); no friction; the cropped skin edge is free (the bone under it is fixed).
+- **Limits**: the mask's pitch and yaw are linearised rotations (a point at radius r moves off
+  its circle by about r theta^2 / 2: 0.25 mm at 36 mm for the 6.7 deg measured at 30 N on the
+  coarse test problem); no friction; the cropped skin edge is free (the bone under it is fixed).
+  The lagged contact planes make the equilibrium depend a little on the start: on the coarse test
+  problem at 8 N a start from the condensed linear solution gave 5.15 cm^2 of contact against
+  5.30 cm^2 from first contact (3 %).
+- **Seal on the bundled face** (measured, issue 6): before contact the nasal-M cushion's axial gap
+  to the skin varies by 3.5 mm around the outline (per 30 deg sector: 0-0.5 mm at the bridge and
+  the lip, 2.2-3.5 mm at the four sectors beside the nose); the bridge and lip touch first and carry
+  the load (coarse problem, 15 N: 8.8 of 15 N on the two lip sectors, peaks ~100 kPa); the sectors
+  beside the alae stay open by 0.1-1 mm and the mask pitches (-2.8 deg at 15 N, -6.7 deg at 30 N);
+  it leaks at 30 N. Without pitch (``rotate=False``) it also leaks at 15 N and did not converge
+  at 30 N.
 - **Placement**: the mask is placed as in the seed, 2 cm in front of the skin along the approach
   axis (:func:`headsim.mask.place_mask`); the quasi-static solve starts from first contact (the
   mask slid along the axis until its nearest skin-side vertex touches), since the unloaded approach
@@ -104,7 +113,6 @@ class FitOptions:
     balance_tolerance : relative mismatch of contact force and strap force above which the fit is
         refused (ConvergenceError)
     rotate : let the mask pitch and yaw about the strap point (moment balance), else translate only
-    contact_direction : "normal" or "axial" (module doc, Contact)
     """
 
     tissue_modulus: float = TISSUE_MODULUS
@@ -121,7 +129,6 @@ class FitOptions:
     max_contact_updates: int = 12
     balance_tolerance: float = 0.01
     rotate: bool = True
-    contact_direction: str = "normal"
 
     def __post_init__(self):
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
@@ -135,8 +142,6 @@ class FitOptions:
             raise ParameterError(f"tissue_layers must be an integer >= 1, got {self.tissue_layers}")
         if self.crop_margin is not None and not (np.isfinite(self.crop_margin) and self.crop_margin > 0):
             raise ParameterError(f"crop_margin must be > 0 m or None, got {self.crop_margin}")
-        if self.contact_direction not in ("normal", "axial"):
-            raise ParameterError(f"contact_direction must be 'normal' or 'axial', got {self.contact_direction!r}")
         if self.placement not in ("auto", "as-is"):
             raise ParameterError(f"placement must be 'auto' or 'as-is', got {self.placement!r}")
         if not (np.isfinite(self.standoff) and 0 <= self.standoff <= 0.1):
@@ -486,8 +491,6 @@ def _axial_update(c, x, u) -> bool:
     nrm = np.zeros((n_s, 3))
     has = ok.copy()
     tri[ok], wts[ok], nrm[ok] = tris[hits.triangle[ok]], hits.barycentric[ok], tri_n[ok]
-    if getattr(c, "axial_direction", False):
-        nrm[ok] = a          # gap and force along the approach axis (FitOptions.contact_direction)
     old_gaps = None
     if len(c.active):
         old_gaps = np.full(n_s, np.inf)
@@ -539,7 +542,6 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
     contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty)
     contact.axis_of_approach = p.approach
-    contact.axial_direction = p.options.contact_direction == "axial"
     contact._tree = None
     contact.tolerance = tolerance
     attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, shell_modes(p, rest_shell))

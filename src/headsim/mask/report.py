@@ -104,7 +104,7 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
         ("model", f"{d['model_vertices']} vertices, {d['model_tets']} tets"),
         ("solver", "condensed linear face + cushion, contact LCP (small-strain model, issue 6 interactive mode)"
          if getattr(fit, "mode", "nonlinear") == "condensed" else
-         f"nonlinear FEM contact, contact direction: {problem.options.contact_direction}"),
+         "nonlinear FEM contact (finite strain, penalty on lagged cushion planes)"),
     ]
     return rows
 
