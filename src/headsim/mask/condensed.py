@@ -29,7 +29,7 @@ vertex = its pair force / its vertex area; contact force = sum of pair forces (=
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -61,6 +61,7 @@ class CondensedFit:
     tissue: object
     cushion: object
     seconds: float
+    cache: dict = field(default_factory=dict)   # the last active set (warm start of the next LCP)
 
     @property
     def n_pairs(self) -> int:
@@ -125,7 +126,11 @@ def condensed_fit(cf: CondensedFit, force: float, *, warm_active: np.ndarray | N
     r = cf.jacobian.shape[1]
     load = np.zeros(r)
     load[0] = force
-    res = solve_contact_lcp(cf.compliance, cf.gaps0, cf.jacobian, load, initial_active=warm_active)
+    # the QP is strictly convex (W positive definite): its solution does not depend on the start,
+    # so the last active set is a safe warm start
+    start = warm_active if warm_active is not None else cf.cache.get("active")
+    res = solve_contact_lcp(cf.compliance, cf.gaps0, cf.jacobian, load, initial_active=start)
+    cf.cache["active"] = res.active
     lam = res.forces
     a = p.approach
     x0 = p.model.rest_positions

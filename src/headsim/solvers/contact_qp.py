@@ -22,6 +22,8 @@ Newton method): on the active set A the gaps vanish, giving the linear KKT syste
     [ W_AA  -J_A ] [lam_A]   [-g0_A]
     [ J_A^T   0  ] [  q  ] = [  f  ],
 
+(solved through a Cholesky factorisation of W_AA and the r x r Schur complement),
+
 and the next set is ``{i : lam_i - c g_i > 0}``; it stops when the set repeats (then all
 conditions hold to round-off) and reports cycling as a ConvergenceError.
 """
@@ -47,6 +49,26 @@ class ContactLCPResult:
     iterations: int
     active: np.ndarray
     complementarity: float
+
+
+def _solve_kkt(w_aa: np.ndarray, j_a: np.ndarray, g_a: np.ndarray, f: np.ndarray):
+    """lam_A, q of the active-set KKT system (module doc) by Cholesky of W_AA and the r x r Schur
+    complement ``S = J_A^T W_AA^-1 J_A``: ``S q = f + J_A^T W_AA^-1 g_A``, ``lam_A = W_AA^-1 (J_A q - g_A)``.
+    Falls back to a least-squares solve of the full KKT matrix when W_AA or S is singular."""
+    k, r = j_a.shape
+    try:
+        cf = sla.cho_factor(w_aa, check_finite=False)
+        wj = sla.cho_solve(cf, j_a, check_finite=False)
+        wg = sla.cho_solve(cf, g_a, check_finite=False)
+        q = np.linalg.solve(j_a.T @ wj, f + j_a.T @ wg)
+        return wj @ q - wg, q
+    except (sla.LinAlgError, np.linalg.LinAlgError, ValueError):
+        kkt = np.zeros((k + r, k + r))
+        kkt[:k, :k] = w_aa
+        kkt[:k, k:] = -j_a
+        kkt[k:, :k] = j_a.T
+        sol = np.linalg.lstsq(kkt, np.concatenate([-g_a, f]), rcond=None)[0]
+        return sol[:k], sol[k:]
 
 
 def solve_contact_lcp(compliance: np.ndarray, gaps0: np.ndarray, rigid_jacobian: np.ndarray,
@@ -83,20 +105,10 @@ def solve_contact_lcp(compliance: np.ndarray, gaps0: np.ndarray, rigid_jacobian:
     q = np.zeros(r)
     for it in range(1, max_iterations + 1):
         ia = np.flatnonzero(active)
-        k = len(ia)
-        kkt = np.zeros((k + r, k + r))
-        kkt[:k, :k] = w[np.ix_(ia, ia)]
-        kkt[:k, k:] = -jac[ia]
-        kkt[k:, :k] = jac[ia].T
-        rhs = np.concatenate([-g0[ia], f])
-        try:
-            sol = sla.solve(kkt, rhs, check_finite=False)
-        except (sla.LinAlgError, ValueError):
-            sol = np.linalg.lstsq(kkt, rhs, rcond=None)[0]
+        lam_a, q = _solve_kkt(w[np.ix_(ia, ia)], jac[ia], g0[ia], f)
         lam = np.zeros(m)
-        lam[ia] = sol[:k]
-        q = sol[k:]
-        gap = g0 - jac @ q + w[:, ia] @ sol[:k]
+        lam[ia] = lam_a
+        gap = g0 - jac @ q + w[:, ia] @ lam_a
         new = lam - c * gap > 0.0
         if np.array_equal(new, active):
             lam_c = np.maximum(lam, 0.0)
