@@ -87,7 +87,8 @@ class SearchResult:
     curve : CurvePoints sorted by force
     n_solves : fits done; seconds : wall time
     status : "sealed", "seals-at-minimum", "no-seal", "max-solves" (bracket not narrowed enough) or
-        "solve-failed" (a fit after the first did not converge; the search stops with the bracket so far)
+        "solve-failed" (fits after the first did not converge and no seal was found below them; the
+        search stops with the bracket so far)
     failures : messages of the fits that did not converge
     """
 
