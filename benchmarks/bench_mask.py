@@ -9,6 +9,8 @@ Measured in one process:
 - one fit (quasi-static FEM contact, force control) at 15 N from first contact (cold), and one
   warm-started at 14 N;
 - the least-seal-force search (bracketing + bisection, warm-started; ``least_seal_force``);
+- the condensed re-fit mode (:mod:`headsim.mask.condensed`): the one-off condensation, one fit at
+  15 N (and the LCP alone), its search, and its numbers next to the nonlinear fit's;
 - the seed-faithful loop (Heinze ch. 3, 5): the same tissue + mask tet meshes as mass-spring bodies
   (springs from the same moduli), explicit Euler (eqs. 3.1-3.2) with the seed's consistent
   collision force (eqs. 3.7-3.13, BVH + Moeller-Trumbore + BFS) every step, the strap force spread
@@ -33,9 +35,14 @@ import numpy as np
 from headsim.solvers.integrators import lowest_angular_frequency
 
 
+_CPU = {}
+
+
 def _timed(fn, *a, **k):
-    t = time.perf_counter()
+    """(result, wall s); the CPU time of the same call is kept in _CPU[fn.__name__] (s)."""
+    t, c = time.perf_counter(), time.process_time()
     out = fn(*a, **k)
+    _CPU[fn.__name__] = time.process_time() - c
     return out, time.perf_counter() - t
 
 
@@ -87,6 +94,32 @@ def seed_loop(problem, force: float, n_steps: int):
     return per_step, dt, steps, steps * per_step
 
 
+def condensed_section(problem, nonlinear_15, search_options) -> None:
+    """The condensed mode: condensation, one fit, the LCP alone, its search; vs the nonlinear fit."""
+    from headsim.mask.condensed import condense_fit, condensed_fit
+    from headsim.mask.search import least_seal_force
+    from headsim.solvers.contact_qp import solve_contact_lcp
+
+    cf, t_c = _timed(condense_fit, problem)
+    print(f"condensed: condensation {t_c:.2f} s wall ({_CPU['condense_fit']:.2f} s CPU), {cf.n_pairs} contact pairs")
+    lin, t_fit = _timed(condensed_fit, cf, 15.0)
+    cpu_fit = _CPU["condensed_fit"]
+    load = np.zeros(cf.jacobian.shape[1])
+    load[0] = 15.0
+    lcp, t_lcp = _timed(solve_contact_lcp, cf.compliance, cf.gaps0, cf.jacobian, load)
+    print(f"condensed fit at 15 N: {t_fit:.3f} s wall ({cpu_fit:.3f} s CPU) incl. seal analysis; LCP alone "
+          f"{t_lcp:.4f} s wall ({_CPU['solve_contact_lcp']:.4f} s CPU), {lcp.iterations} active-set iterations")
+    for name, r in (("condensed", lin), ("nonlinear", nonlinear_15)):
+        s = r.summary
+        print(f"   {name:9s} 15 N: area {s.contact_area_cm2:6.2f} cm², peak {s.peak_pressure / 1e3:6.1f} kPa, mean "
+              f"{s.mean_pressure / 1e3:5.1f} kPa, rotation {np.round(r.mask_rotation_deg, 2)} deg, "
+              f"{'sealed' if r.sealed else 'leaks'}")
+    res, t_s = _timed(least_seal_force, problem, search_options, mode="condensed")
+    print(f"condensed least-seal-force search: {t_s:.2f} s wall ({_CPU['least_seal_force']:.2f} s CPU, condensation "
+          f"included), {res.n_solves} fits, status {res.status}, seal force {res.seal_force} N "
+          f"(largest leaking {res.lower_bound} N)")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer explicit steps, looser search tolerance")
@@ -106,7 +139,9 @@ def main(argv=None) -> None:
     print(f"set-up: landmarks {t_lm:.2f} s, placement + tissue + model {t_prep:.2f} s; model {d['model_vertices']} "
           f"vertices / {d['model_tets']} tets ({d['cropped_skin_vertices']} skin vertices)")
     cold, t_cold = _timed(problem_fit, problem, 15.0)
+    cpu_cold = _CPU["problem_fit"]
     warm, t_warm = _timed(problem_fit, problem, 14.0, warm_start=cold.state)
+    print(f"CPU time: cold fit {cpu_cold:.2f} s, warm fit {_CPU['problem_fit']:.2f} s")
     for name, r, t in (("cold, 15 N", cold, t_cold), ("warm, 14 N", warm, t_warm)):
         s = r.summary
         print(f"one fit ({name}): {t:6.2f} s, {r.newton_iterations} Newton its, {r.contact_updates} contact updates; "
@@ -115,11 +150,13 @@ def main(argv=None) -> None:
               f"{'sealed' if r.sealed else 'leaks'}")
     opts = SearchOptions(start=10.0, maximum=30.0, abs_tol=1.0 if args.quick else 0.5)
     res, t_search = _timed(least_seal_force, problem, opts)
-    print(f"least-seal-force search: {t_search:6.2f} s, {res.n_solves} fits, status {res.status}, "
-          f"seal force {res.seal_force} N (largest leaking {res.lower_bound} N)")
+    cpu_search = _CPU["least_seal_force"]
+    print(f"least-seal-force search: {t_search:6.2f} s wall ({cpu_search:.2f} s CPU), {res.n_solves} fits, "
+          f"status {res.status}, seal force {res.seal_force} N (largest leaking {res.lower_bound} N)")
     for c in res.curve:
         print(f"   F = {c.force:6.2f} N: area {c.contact_area_cm2:6.2f} cm², peak {c.peak_pressure_kpa:7.1f} kPa, "
               f"mean {c.mean_pressure_kpa:6.1f} kPa, {'sealed' if c.sealed else 'leaks'}")
+    condensed_section(problem, cold, opts)
     n_steps = 3 if args.quick else 10
     per_step, dt, steps, t_eq = seed_loop(problem, 15.0, n_steps)
     print(f"seed-faithful explicit loop: {per_step:.3f} s/step measured over {n_steps} steps, dt = {dt:.3g} s "

@@ -61,3 +61,21 @@ def test_mask_fit_writes_the_report(tmp_path, capsys):
     data = json.loads((out / "result.json").read_text())
     assert data["fit"]["force_balance_error"] < 0.01
     assert ("SEALED" in stdout) == data["fit"]["sealed"]
+
+
+def test_condensed_mode_fit_writes_the_report(tmp_path, capsys):
+    out = tmp_path / "fit"
+    code, stdout, err = _run(["mask", "fit", "--mode", "condensed", "--force", "8", "--crop", "6", "--mask-edge", "5",
+                              "--out", str(out)], capsys)
+    assert code in (0, None), err
+    data = json.loads((out / "result.json").read_text())
+    assert data["fit"]["solver_mode"] == "condensed"
+    assert data["fit"]["force_balance_error"] < 1e-9
+    assert "condensed" in (out / "report.html").read_text()
+
+
+def test_bad_mode_gives_exit_2_and_no_output(tmp_path, capsys):
+    out = tmp_path / "fit"
+    code, _, err = _run(["mask", "fit", "--mode", "linear", "--out", str(out)], capsys)
+    assert code == 2 and "--mode" in err
+    assert not out.exists()

@@ -168,3 +168,22 @@ def test_describe(masks):
     assert d["width_mm"] == pytest.approx(60.0, abs=1.0)
     assert d["height_mm"] == pytest.approx(65.0, abs=1.5)
     assert d["n_tets"] == masks["nasal-M"].tetmesh.n_tets
+
+
+def test_membrane_cushion_modulus_follows_section_height():
+    """The membrane homogenisation: E_eff = E_m t^3 / (2 w H^2) per section; a tall section is softer."""
+    from headsim.mask.masks import MEMBRANE_CUSHION, PAP_MEMBRANE, MembraneWall, membrane_cushion_modulus
+
+    e = membrane_cushion_modulus(PAP_MEMBRANE, 10e-3, np.array([8e-3, 15e-3, 27e-3]))
+    np.testing.assert_allclose(e, [effective_cushion_modulus(1.11e6, 3e-3, 10e-3, h) for h in (8e-3, 15e-3, 27e-3)])
+    assert e[0] > e[1] > e[2]
+    assert MEMBRANE_CUSHION.youngs_modulus == pytest.approx(e[1])
+    m = make_mask("nasal-M", edge_length=5e-3, cushion="membrane")
+    assert m.tet_modulus is not None and m.tet_modulus.shape == (m.tetmesh.n_tets,)
+    # bounded by the shortest (bridge, 8 mm + rounding) and tallest (cheek) sections of nasal-M
+    assert 1.5e3 < m.tet_modulus.min() < m.tet_modulus.max() < 60e3
+    assert make_mask("nasal-M", edge_length=5e-3).tet_modulus is None          # the solid default
+    with pytest.raises(ParameterError):
+        make_mask("nasal-M", cushion="foam")
+    with pytest.raises(ParameterError):
+        MembraneWall(thickness=-1e-3)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parent))  # noqa: E402
 from _fit_case import coarse_problem
 from headsim.errors import ParameterError
 from headsim.mask import search as search_mod
@@ -71,6 +71,24 @@ def test_seals_at_the_minimum(monkeypatch):
     monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(0.0, []))
     res = least_seal_force(None, SearchOptions(start=10.0, minimum=1.0))
     assert res.status == "seals-at-minimum" and res.seal_force == 1.0 and res.lower_bound is None
+
+
+def test_failed_solve_while_bracketing_retries_below(monkeypatch):
+    """The model fails above 30 N, the seal is at 24 N: bracketing 10 -> 20 -> 40 (fails) must look
+    between 20 and 40 and find the seal, not stop at the failure."""
+    from headsim.errors import ConvergenceError
+
+    ok = _fake_solver(24.0, [])
+
+    def fake(problem, force, warm_start=None):
+        if force > 30.0:
+            raise ConvergenceError("beyond the model")
+        return ok(problem, force, warm_start)
+
+    monkeypatch.setattr(search_mod, "problem_fit", fake)
+    res = least_seal_force(None, SearchOptions(start=10.0, maximum=60.0, abs_tol=0.5, rel_tol=0.0, max_solves=20))
+    assert res.status == "sealed" and 24.0 <= res.seal_force <= 24.5
+    assert res.failures and "40.00 N" in res.failures[0]
 
 
 def test_search_options_are_validated():

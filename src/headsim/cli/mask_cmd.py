@@ -73,6 +73,16 @@ CROP = typer.Option(8.0, "--crop", help="skin kept around the mask footprint, mm
 EDGE = typer.Option(4.0, "--mask-edge", help="built-in mask element size, mm")
 THERAPY = typer.Option(980.665, "--therapy-pressure", help="air pressure the seal must hold, Pa (10 cmH2O)")
 THRESH = typer.Option(4.266, "--threshold", help="pressure-injury threshold, kPa (32 mmHg)")
+MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM contact) or condensed (linear face "
+                    "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
+
+
+def _check_mode(mode: str) -> str:
+    from headsim.errors import ParameterError
+
+    if mode not in ("nonlinear", "condensed"):
+        raise ParameterError(f"--mode must be 'nonlinear' or 'condensed', got {mode!r}")
+    return mode
 
 
 @app.command("list")
@@ -107,17 +117,23 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
         force: float = typer.Option(15.0, "--force", help="strap force, N"),
         out: Path = typer.Option(..., "--out", help="output folder (report.html, result.json, PNG, VTU/PLY)"),
         layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, therapy_pressure: float = THERAPY,
-        threshold: float = THRESH) -> None:
+        threshold: float = THRESH, mode: str = MODE) -> None:
     """Press MASK onto FACE with strap force FORCE (N); write pressures, seal and leaks."""
     from headsim.cli._common import atomic_output_dir
     from headsim.mask.fit import check_force, problem_fit
     from headsim.mask.report import write_fit_report
 
     check_force(force)
+    _check_mode(mode)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold)
-    with typer.progressbar(length=1, label=f"fit at {force:g} N") as bar:
-        result = problem_fit(problem, force)
+    with typer.progressbar(length=1, label=f"fit at {force:g} N ({mode})") as bar:
+        if mode == "condensed":
+            from headsim.mask.condensed import condense_fit, condensed_fit
+
+            result = condensed_fit(condense_fit(problem), force)
+        else:
+            result = problem_fit(problem, force)
         bar.update(1)
     with atomic_output_dir(out) as tmp:
         write_fit_report(tmp, problem, result)
@@ -127,7 +143,7 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
                f"{s.mean_pressure / 1e3:.1f} kPa -> {out}/report.html")
 
 
-def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float):
+def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float, mode: str = "nonlinear"):
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from headsim.cli._common import atomic_output_dir
@@ -142,7 +158,7 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float)
         def progress(done, total, msg):
             bar.update(task, completed=done, msg=msg)
 
-        result = least_seal_force(problem, opts, progress=progress)
+        result = least_seal_force(problem, opts, progress=progress, mode=mode)
     with atomic_output_dir(out) as tmp:
         write_fit_report(tmp, problem, result.fit, result)
     if result.seal_force is None:
@@ -166,14 +182,15 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
                tol: float = typer.Option(0.5, "--tol", help="force tolerance, N (or 5 %, the larger)"),
                out: Path = typer.Option(..., "--out", help="output folder"),
                layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE,
-               therapy_pressure: float = THERAPY, threshold: float = THRESH) -> None:
+               therapy_pressure: float = THERAPY, threshold: float = THRESH, mode: str = MODE) -> None:
     """Search the least strap force with which MASK seals on FACE (bracketing + bisection, warm-started)."""
     from headsim.mask.search import SearchOptions
 
     SearchOptions(start=start, maximum=maximum, abs_tol=tol)  # validate before the set-up work
+    _check_mode(mode)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold)
-    run_seal_force(problem, out, start, maximum, tol)
+    run_seal_force(problem, out, start, maximum, tol, mode)
 
 
 @app.command("study")
@@ -187,12 +204,12 @@ def study(faces: Path = typer.Option(..., "--faces", help="folder of face meshes
           start: float = typer.Option(10.0, "--start", help="first force tried, N"),
           maximum: float = typer.Option(60.0, "--max-force", help="largest force tried, N"),
           tol: float = typer.Option(1.0, "--tol", help="force tolerance, N"),
-          layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE) -> None:
+          layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, mode: str = MODE) -> None:
     """Least seal force of every face x mask on Dask; resumable (finished cases kept in OUT/cases.sqlite)."""
     from headsim.mask.study import StudyOptions, run_study
 
     opts = StudyOptions(units=units, start=start, maximum=maximum, abs_tol=tol, tissue_layers=layers,
-                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3)
+                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode))
     summary = run_study(faces, [m.strip() for m in masks.split(",") if m.strip()], out, options=opts,
                         scheduler=scheduler, n_workers=workers, progress=True)
     typer.echo(f"{summary['n_cases']} cases ({summary['n_computed']} computed now, {summary['n_reused']} from the "

@@ -27,15 +27,29 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   contacts about to form are already in the Newton system; penalty kappa = ``penalty_factor`` x
   E_soft / h (Pa per m of penetration; h the median skin edge). Contact pressure at a skin vertex =
   kappa x penetration (Pa), force = pressure x vertex area. One-sided: cushion vertices are not
-  kept out of the skin (both meshes have 3-5 mm spacing).
+  kept out of the skin (both meshes have 3-5 mm spacing). Gap and force along the cushion
+  triangle's normal, frictionless. (Gap and force along the approach axis instead -- the seed's
+  heightmap axis, as the condensed mode does -- was tried: the Newton solve did not converge at 15 N
+  on the coarse test problem, |g| = 1.05 N after 80 iterations, so it is not offered.)
 - **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton with the exact Hessian where it
   gives descent, line search; contact planes refreshed in an outer loop), force-controlled from
   first contact. A warm start (:class:`FitState` of an earlier fit on the same
   :class:`FitProblem`) starts from that equilibrium; when it fails, a cold start is tried. The fit
   is refused (ConvergenceError) when neither converges, when tets invert, or when the contact force
   does not balance the strap force within ``balance_tolerance``.
-- **Limits**: the mask's pitch and yaw are linearised rotations (about 2 % stretch of the shell at
-  12 deg); no friction; the cropped skin edge is free (the bone under it is fixed).
+- **Limits**: the mask's pitch and yaw are linearised rotations (a point at radius r moves off
+  its circle by about r theta^2 / 2: 0.25 mm at 36 mm for the 6.7 deg measured at 30 N on the
+  coarse test problem); no friction; the cropped skin edge is free (the bone under it is fixed).
+  The lagged contact planes make the equilibrium depend a little on the start: on the coarse test
+  problem at 8 N a start from the condensed linear solution gave 5.15 cm^2 of contact against
+  5.30 cm^2 from first contact (3 %).
+- **Seal on the bundled face** (measured, issue 6): before contact the nasal-M cushion's axial gap
+  to the skin varies by 3.5 mm around the outline (per 30 deg sector: 0-0.5 mm at the bridge and
+  the lip, 2.2-3.5 mm at the four sectors beside the nose); the bridge and lip touch first and carry
+  the load (coarse problem, 15 N: 8.8 of 15 N on the two lip sectors, peaks ~100 kPa); the sectors
+  beside the alae stay open by 0.1-1 mm and the mask pitches (-2.8 deg at 15 N, -6.7 deg at 30 N);
+  it leaks at 30 N. Without pitch (``rotate=False``) it also leaks at 15 N and did not converge
+  at 30 N.
 - **Placement**: the mask is placed as in the seed, 2 cm in front of the skin along the approach
   axis (:func:`headsim.mask.place_mask`); the quasi-static solve starts from first contact (the
   mask slid along the axis until its nearest skin-side vertex touches), since the unloaded approach
@@ -74,6 +88,8 @@ EXACT = True
 UPDATE_TOL = 2e-4
 #: Newton iterations per contact update before a fit is declared not converging
 MAXIT = 40
+#: per-dof residual force tolerance of the Newton solve, times the strap force
+FORCE_TOL = 1e-7
 #: Effective homogeneous facial soft-tissue modulus, Pa (module doc).
 TISSUE_MODULUS = 30e3
 TISSUE_POISSON = 0.49
@@ -292,6 +308,8 @@ class FitResult:
     mask_displacement : m, translation of the shell along the approach axis from first contact
     state : FitState for warm starts
     newton_iterations, contact_updates : solver effort; seconds : wall time of the solve
+    mode : "nonlinear" (:func:`problem_fit`) or "condensed" (:mod:`headsim.mask.condensed`; its
+        ``newton_iterations`` are active-set iterations)
     """
 
     force: float
@@ -311,6 +329,7 @@ class FitResult:
     newton_iterations: int
     contact_updates: int
     seconds: float
+    mode: str = "nonlinear"
 
     @property
     def sealed(self) -> bool:
@@ -336,6 +355,7 @@ class FitResult:
             "newton_iterations": self.newton_iterations,
             "contact_updates": self.contact_updates,
             "solve_seconds": self.seconds,
+            "solver_mode": self.mode,
         }
 
 
@@ -399,12 +419,23 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
     # shell tets only translate rigidly with the driver: their material does not enter the answer
     model = fem_from_tetmesh(combined, {REGION_TISSUE: tissue_mat, REGION_CUSHION: cushion_mat,
                                         REGION_SHELL: cushion_mat})
+    e_cushion = cm.youngs_modulus
+    if placed.tet_modulus is not None:
+        # per-section modulus of a homogenised membrane cushion (MaskModel.tet_modulus)
+        from dataclasses import replace as _replace
+
+        e_tet = np.concatenate([np.full(tissue.n_tets, options.tissue_modulus), placed.tet_modulus])
+        nu = np.where(tet_region == REGION_TISSUE, options.tissue_poisson, cm.poisson_ratio)
+        mu = e_tet / (2.0 * (1.0 + nu))
+        lam = e_tet * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+        model = _replace(model, shear_modulus=mu, lame_lambda=lam)
+        e_cushion = float(np.median(placed.tet_modulus[mt.tet_region != REGION_SHELL]))
     skin = np.arange(layer.n_skin, dtype=np.int64)
     skin_tri = layer.skin_triangles
     areas = surface_vertex_areas(nt, skin_tri, tissue.vertices)[skin]
     edge = np.linalg.norm(np.diff(sub.vertices[sub.edges], axis=1)[:, 0], axis=1)
     h = float(np.median(edge))
-    e_soft = min(options.tissue_modulus, cm.youngs_modulus)
+    e_soft = min(options.tissue_modulus, e_cushion)
     penalty = options.penalty_factor * e_soft / h
     airway = airway_vertices(face, lm, placed.kind)
     return FitProblem(
@@ -529,7 +560,7 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float):
     opts = QuasiStaticOptions(newton=NewtonOptions(relative_tolerance=1e-10, try_exact_hessian=EXACT,
                                                    max_iterations=MAXIT),
                               max_contact_updates=p.options.max_contact_updates,
-                              force_tolerance=1e-7 * force_scale)
+                              force_tolerance=FORCE_TOL * force_scale)
     res = solve_quasi_static(p.model, [contact, attach], drivers, initial_positions=x0, initial_drivers=u0,
                              options=opts)
     return res, contact

@@ -35,7 +35,17 @@ Parametric design (all lengths for size M; S and L scale the whole mask by 0.9 a
   triangles × outline samples → prisms → 3 tets each (Dompierre et al. 1999), conforming and
   positively oriented; deterministic.
 
-Material: see :data:`CUSHION_SILICONE` and :func:`effective_cushion_modulus`.
+Material: see :data:`CUSHION_SILICONE` and :func:`effective_cushion_modulus`. ``make_mask(...,
+cushion="membrane")`` builds the hollow-membrane homogenisation instead (:data:`MEMBRANE_CUSHION`,
+per-tet modulus :func:`membrane_cushion_modulus` from each section's own height: 2-49 kPa for
+nasal-M). Measured on the bundled face it is far too soft to stand for a real membrane cushion: the
+condensed linear model moves the cushion 18 mm at 5 N (more than its height) and the nonlinear fit
+inverts cushion tets at 3 N -- a wall-bending homogenisation has no axial stiffness before the walls
+buckle and no undercushion to bottom out on. A 3 mm, 1.11 MPa wall clamped at the shell buckles at
+P_cr = pi^2 D / (4 H^2) = 20 N/m per wall for H = 20 mm (D = E t^3 / (12 (1 - nu^2))), i.e. about
+7 N on the 17 cm nasal outline with two walls: a real membrane cushion works at a near-constant
+force after buckling, which no single linear or neo-Hookean solid reproduces. The solid cushion
+stays the default; the membrane option is kept for that comparison.
 """
 
 from __future__ import annotations
@@ -122,6 +132,58 @@ CUSHION_SILICONE = CushionMaterial(
 )
 
 
+@dataclass(frozen=True)
+class MembraneWall:
+    """The thin silicone wall of a hollow (membrane) cushion: thickness m, modulus Pa, its source."""
+
+    thickness: float = 3e-3
+    youngs_modulus: float = 1.11e6
+    poisson_ratio: float = 0.49
+    source: str = SILICONE_MEMBRANE.source
+
+    def __post_init__(self):
+        if not (np.isfinite(self.thickness) and 0 < self.thickness <= 0.02):
+            raise ParameterError(f"membrane thickness must be in (0, 20] mm, got {self.thickness * 1e3:g} mm")
+        if not (np.isfinite(self.youngs_modulus) and self.youngs_modulus > 0):
+            raise ParameterError(f"membrane youngs_modulus must be > 0 Pa, got {self.youngs_modulus}")
+
+
+#: The issue's membrane: 3 mm silicone, E = 1.11 MPa, nu = 0.49.
+PAP_MEMBRANE = MembraneWall()
+
+
+def membrane_cushion_modulus(wall: MembraneWall, cushion_width: float, free_height) -> np.ndarray:
+    """Per-section modulus (Pa) of the solid that stands in for a hollow membrane cushion.
+
+    :func:`effective_cushion_modulus` evaluated at every cushion section's own free height
+    ``free_height`` (m, array): the two walls of a section bend like plates clamped at the rigid
+    shell and loaded at the skin, so a tall section (at the cheeks) is far softer than a short one
+    (over the nasal bridge), ``E_eff = E_m t^3 / (2 w H^2)``. Returns an array shaped like
+    ``free_height``.
+    """
+    h = np.asarray(free_height, dtype=np.float64)
+    if not (np.isfinite(h).all() and (h > 0).all()):
+        raise ParameterError("free_height must be > 0 m everywhere")
+    if not (np.isfinite(cushion_width) and cushion_width > 0):
+        raise ParameterError(f"cushion_width must be > 0 m, got {cushion_width}")
+    return wall.youngs_modulus * wall.thickness**3 / (2.0 * cushion_width * h**2)
+
+
+#: Material of the homogenised membrane cushion (the built-in masks' default; the modulus varies
+#: per tet, :func:`membrane_cushion_modulus`, the value here is its value for a 15 mm tall, 10 mm
+#: wide section and is used only where one number is needed). nu = 0.3: the homogenised body is a
+#: hollow structure, mostly air, that deforms by bending its walls and does not bulge sideways like
+#: an incompressible solid; cellular solids have an effective Poisson ratio of about 0.3 (Gibson &
+#: Ashby, Cellular Solids, 2nd ed., Cambridge University Press 1997, ch. 5).
+MEMBRANE_CUSHION = CushionMaterial(
+    youngs_modulus=effective_cushion_modulus(1.11e6, 3e-3, 10e-3, 15e-3), poisson_ratio=0.3, density=1100.0,
+    name="silicone membrane cushion (homogenised, per-section modulus)",
+    source="hollow cushion of a 3 mm silicone membrane, E = 1.11 MPa (custom-fit PAP cushion FE design, "
+           "issue 6), homogenised by wall bending: E_eff = E_m t^3 / (2 w H^2) per section height H; "
+           "effective nu = 0.3 (cellular solids, Gibson & Ashby 1997)",
+)
+
+
 # ------------------------------------------------------------------------------------------------
 # the model
 # ------------------------------------------------------------------------------------------------
@@ -143,6 +205,9 @@ class MaskModel:
     up : (3,) float64 unit vector, the mask's up direction (towards the wearer's forehead),
         orthogonal to ``airway_axis``.
     material : CushionMaterial of the cushion (the shell is rigid).
+    tet_modulus : (m,) float64 Pa or None: per-tet Young's modulus of a homogenised cushion whose
+        stiffness varies along the outline (the built-in membrane cushions,
+        :func:`membrane_cushion_modulus`); None: ``material.youngs_modulus`` everywhere.
     """
 
     name: str
@@ -154,9 +219,16 @@ class MaskModel:
     airway_axis: np.ndarray
     up: np.ndarray
     material: CushionMaterial = field(default_factory=lambda: CUSHION_SILICONE)
+    tet_modulus: np.ndarray | None = None
 
     def __post_init__(self):
         tm = self.tetmesh
+        if self.tet_modulus is not None:
+            em = np.array(self.tet_modulus, dtype=np.float64)
+            if em.shape != (tm.n_tets,) or not (np.isfinite(em).all() and (em > 0).all()):
+                raise ParameterError(f"{self.name}: tet_modulus must be ({tm.n_tets},) positive finite Pa values")
+            em.flags.writeable = False
+            object.__setattr__(self, "tet_modulus", em)
         if not isinstance(tm, TetMesh):
             raise MeshError(f"{self.name}: tetmesh must be a TetMesh")
         if tm.fixed is None or tm.vertex_region is None or tm.tet_region is None:
@@ -316,7 +388,8 @@ def _min_curvature_radius(points: np.ndarray) -> float:
 
 def build_parametric_mask(design: MaskDesign, scale: float = 1.0, edge_length: float = 3e-3,
                           name: str | None = None, size: str | None = None,
-                          material: CushionMaterial = CUSHION_SILICONE) -> MaskModel:
+                          material: CushionMaterial = CUSHION_SILICONE,
+                          membrane: "MembraneWall | None" = None) -> MaskModel:
     """Build the tet mesh of a parametric mask (see the module doc).
 
     Parameters
@@ -324,6 +397,10 @@ def build_parametric_mask(design: MaskDesign, scale: float = 1.0, edge_length: f
     design : MaskDesign
     scale : uniform size factor (S 0.9, M 1.0, L 1.1)
     edge_length : target element size along the outline and across the cushion, m (1–5 mm)
+    material : the cushion's material (its Poisson ratio and density are used with ``membrane``)
+    membrane : a MembraneWall: the solid cushion is the homogenised hollow membrane cushion, with a
+        per-tet modulus from the local cushion height (:func:`membrane_cushion_modulus`); None: the
+        uniform ``material``
     """
     if not 0.5e-3 <= edge_length <= 5e-3:
         raise ParameterError(f"edge_length must be 0.5–5 mm, got {edge_length * 1e3:g} mm")
@@ -379,16 +456,34 @@ def build_parametric_mask(design: MaskDesign, scale: float = 1.0, edge_length: f
     tm = TetMesh(vertices, tets, tet_region=tet_region, vertex_region=vertex_region, fixed=fixed, name=label)
     boundary = tm.boundary_triangles
     contact = boundary[(~fixed[boundary]).all(axis=1)]
+    tet_modulus = None
+    if membrane is not None:
+        # free (soft) height of the cushion at each outline sample, averaged over a tet's vertices
+        sample_of_vertex = np.repeat(np.arange(n_samples), n_nodes)
+        free_height = (height - shell_t)[sample_of_vertex[tets]].mean(axis=1)
+        tet_modulus = membrane_cushion_modulus(membrane, w, free_height)
     return MaskModel(name=label, kind=design.kind, size=size, tetmesh=tm, contact_triangles=contact,
                      airway_center=np.zeros(3), airway_axis=np.array([0.0, 0.0, -1.0]),
-                     up=np.array([0.0, 1.0, 0.0]), material=material)
+                     up=np.array([0.0, 1.0, 0.0]), material=material, tet_modulus=tet_modulus)
 
 
-def make_mask(name: str, edge_length: float = 3e-3, material: CushionMaterial = CUSHION_SILICONE) -> MaskModel:
-    """A built-in mask by name (``nasal-M``, ``oronasal-L``, … see :func:`mask_catalogue`)."""
+def make_mask(name: str, edge_length: float = 3e-3, material: CushionMaterial | None = None,
+              cushion: str = "solid") -> MaskModel:
+    """A built-in mask by name (``nasal-M``, ``oronasal-L``, … see :func:`mask_catalogue`).
+
+    cushion : "membrane" (default: the hollow 3 mm silicone membrane cushion, homogenised per section,
+        :func:`membrane_cushion_modulus`, material :data:`MEMBRANE_CUSHION`) or "solid" (a uniform
+        solid cushion, material :data:`CUSHION_SILICONE`, the earlier model)
+    material : overrides the cushion's material (its modulus is used only with ``cushion="solid"``)
+    """
+    if cushion not in ("membrane", "solid"):
+        raise ParameterError(f"cushion must be 'membrane' or 'solid', got {cushion!r}")
+    membrane = PAP_MEMBRANE if cushion == "membrane" else None
+    if material is None:
+        material = MEMBRANE_CUSHION if cushion == "membrane" else CUSHION_SILICONE
     kind, _, size = str(name).strip().partition("-")
     if kind not in _DESIGNS or size.upper() not in _SIZES:
         raise ParameterError(f"unknown mask {name!r}; built-in masks: {', '.join(mask_catalogue())}")
     size = size.upper()
     return build_parametric_mask(_DESIGNS[kind], scale=_SIZES[size], edge_length=edge_length,
-                                 name=f"{kind}-{size}", size=size, material=material)
+                                 name=f"{kind}-{size}", size=size, material=material, membrane=membrane)

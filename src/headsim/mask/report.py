@@ -102,6 +102,9 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
          f"{d['tissue_thickness_mm']:.0f} mm to fixed bone, E = {d['tissue_modulus_kpa']:.0f} kPa, nu = {d['tissue_poisson']}"),
         ("cushion", f"E = {d['cushion_modulus_kpa']:.0f} kPa, nu = {d['cushion_poisson']} ({d['cushion_material_source']})"),
         ("model", f"{d['model_vertices']} vertices, {d['model_tets']} tets"),
+        ("solver", "condensed linear face + cushion, contact LCP (small-strain model, issue 6 interactive mode)"
+         if getattr(fit, "mode", "nonlinear") == "condensed" else
+         "nonlinear FEM contact (finite strain, penalty on lagged cushion planes)"),
     ]
     return rows
 

@@ -11,8 +11,10 @@ airway), assumed monotone in the force (a mask that seals at F seals at every la
    rel_tol x F_hi)``. The answer is F_hi (a force that seals, at most the tolerance above the least
    one); the pressure map at F_hi is reported.
 
-A fit that does not converge (after the first) ends the search with status "solve-failed" and the
-bracket found so far, reported as such. Every fit is warm-started from the converged fit of the nearest force already solved
+A fit that does not converge while bracketing upwards is retried halfway between the largest leaking
+force and the failed one (the seal may lie below the force where the model fails), until that
+interval is within the tolerance; otherwise a fit that does not converge (after the first) ends the
+search with status "solve-failed" and the bracket found so far, reported as such. Every fit is warm-started from the converged fit of the nearest force already solved
 (:class:`headsim.mask.fit.FitState`); a failed warm start falls back to a cold one. Every solved force
 also gives a point of the force -> contact area and force -> peak pressure curves.
 """
@@ -85,7 +87,8 @@ class SearchResult:
     curve : CurvePoints sorted by force
     n_solves : fits done; seconds : wall time
     status : "sealed", "seals-at-minimum", "no-seal", "max-solves" (bracket not narrowed enough) or
-        "solve-failed" (a fit after the first did not converge; the search stops with the bracket so far)
+        "solve-failed" (fits after the first did not converge and no seal was found below them; the
+        search stops with the bracket so far)
     failures : messages of the fits that did not converge
     """
 
@@ -116,16 +119,28 @@ class SearchResult:
 
 
 def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions(),
-                     progress: Callable[[int, int, str], None] | None = None) -> SearchResult:
+                     progress: Callable[[int, int, str], None] | None = None, mode: str = "nonlinear") -> SearchResult:
     """Search the least strap force that seals (module doc).
 
     problem : from :func:`headsim.mask.fit.prepare_fit`
     progress : called as progress(solves_done, max_solves, message) after each fit
+    mode : "nonlinear" (every fit by :func:`headsim.mask.fit.problem_fit`) or "condensed" (the linear
+        condensed model of :mod:`headsim.mask.condensed`, condensed once at the start; its time counts)
     """
     if options.maximum > MAX_STRAP_FORCE:
         raise ParameterError(f"maximum force must be <= {MAX_STRAP_FORCE:g} N")
+    if mode not in ("nonlinear", "condensed"):
+        raise ParameterError(f"mode must be 'nonlinear' or 'condensed', got {mode!r}")
     t0 = time.perf_counter()
     fits: dict[float, FitResult] = {}
+    fitter = problem_fit
+    if mode == "condensed":
+        from headsim.mask.condensed import condense_fit, condensed_fit
+
+        condensed = condense_fit(problem)
+
+        def fitter(_problem, f, warm_start=None):
+            return condensed_fit(condensed, f)
 
     failed: list[str] = []
 
@@ -135,7 +150,7 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
             near = min(fits, key=lambda g: abs(g - f))
             warm = fits[near].state
         try:
-            r = problem_fit(problem, f, warm_start=warm)
+            r = fitter(problem, f, warm_start=warm)
         except ConvergenceError as e:
             if not fits:
                 raise
@@ -168,19 +183,28 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
                 break
     else:
         lo = f
-        while len(fits) < options.max_solves:
+        ceiling = None        # smallest force whose solve failed while bracketing upwards
+        while len(fits) + len(failed) < options.max_solves:
             if f >= options.maximum:
                 status = "no-seal"
                 break
-            f = min(2.0 * f, options.maximum)
-            r = solve(f)
+            nxt = min(2.0 * f, options.maximum) if ceiling is None else 0.5 * (lo + ceiling)
+            r = solve(nxt)
             if r is None:
-                status = "solve-failed"
-                break
+                # the solve fails at nxt: look for the seal below it (module doc, step 1)
+                ceiling = nxt
+                if ceiling - lo <= max(options.abs_tol, options.rel_tol * ceiling):
+                    status = "solve-failed"
+                    break
+                continue
+            f = nxt
             if r.sealed:
                 hi = f
                 break
             lo = f
+            if ceiling is not None and ceiling - lo <= max(options.abs_tol, options.rel_tol * ceiling):
+                status = "solve-failed"
+                break
         else:
             if hi is None:
                 status = "no-seal" if f >= options.maximum else "max-solves"
