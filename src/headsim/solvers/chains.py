@@ -717,7 +717,7 @@ class ChainSolver:
         lam[order] = lam_sorted
         return u_out, int(sweeps.max(initial=0))
 
-    def _joint_rows(self, model, rows, x_mid, R_mid, dt):
+    def _joint_rows(self, model, rows, x_mid, R_mid, dt, u_minus=None):
         """Bilateral joint rows of every fibre with a contact: bodies k (−1: root anchor), l, levers, and the
         target relative anchor velocity −d_mid/(½Δt) that closes the mid-step gap by the step's end."""
         fib = model.segment_fibre
@@ -736,8 +736,15 @@ class ChainSolver:
         pk = np.where(is_root[:, None], model.root_point[fib[seg]], x_mid[kk] + rk)
         d = pk - (x_mid[seg] + rl)
         target = -d / (0.5 * dt)
+        # implicit spring of every joint over the second half step (§8.5.3; the joint stage's L* grows by
+        # Δt K_w Δθ_end + Δt c Δω_rel with Δθ_end = ½Δt Δω_rel): C = ½Δt² K_w + Δt c E
+        Rk = np.where(is_root[:, None, None], model.root_frame[fib[seg]], R_mid[kk])
+        Kw = np.einsum("sac,sc,sbc->sab", Rk, model.joint_stiffness[seg], Rk)
+        C = 0.5 * dt * dt * Kw + dt * model.joint_damping[seg, None, None] * np.eye(3)
+        wk = np.where(is_root[:, None], 0.0, u_minus[kk, 3:]) if u_minus is not None else 0.0
+        w0 = (u_minus[seg, 3:] - wk) if u_minus is not None else np.zeros((len(seg), 3))
         return (k.astype(np.int64), seg.astype(np.int64), np.ascontiguousarray(rk), np.ascontiguousarray(rl),
-                np.ascontiguousarray(target))
+                np.ascontiguousarray(target), np.ascontiguousarray(C), np.ascontiguousarray(w0))
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
                   x_mid=None):
@@ -752,12 +759,12 @@ class ChainSolver:
             tg = np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt))
             lam_p = np.zeros(len(pr))
             mc, ms = self._mu
-            jk, jl, jrk, jrl, jt = self._joint_rows(model, rows, x_mid, R_mid, dt)
+            jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt, u_minus)
             sw = K.project_coupled(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
                                    np.ascontiguousarray(rows.lever[pr]), np.ascontiguousarray(rows.partner_lever[pr]),
                                    np.ascontiguousarray(tg), u, model.mass, R_mid, model.inertia, mc, ms,
                                    float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p,
-                                   jk, jl, jrk, jrl, jt)
+                                   jk, jl, jrk, jrl, jt, jc, jw0)
             lam[:] = 0.0
             lam[pr] = lam_p
             sweeps_box[0] = max(sweeps_box[0], int(sw))

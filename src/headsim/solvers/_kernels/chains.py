@@ -616,7 +616,8 @@ def _frame(axis, n):
 
 @njit(cache=True)
 def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
-                    restitution, max_iter, tol, lam_out, joint_k, joint_l, joint_rk, joint_rl, joint_target):
+                    restitution, max_iter, tol, lam_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
+                    joint_compliance_inv, joint_w0):
     """Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
     ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
     λ_c·conv{μ_β d_β} per contact (frame t₁ from body A's axis) and the same exact 2-D block solves as
@@ -627,7 +628,16 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
     joint_target (nj, 3) m/s) are bilateral point-joint constraints (u_k + ω_k × r_k) − (u_l + ω_l × r_l)
     = target, solved in the same sweeps with their exact 3×3 K-matrix blocks (Mirtich 1996), so the
     contact impulses and the joints agree at the velocity level (the velocity-level counterpart of the
-    seed's harmonisation). Returns the sweeps used."""
+    seed's harmonisation).
+
+    Spring rows (joint_compliance_inv (nj, 3, 3): C = ½Δt² K_w + Δt c E, the implicit bending/torsion
+    spring of §8.5.3 seen over the second half step; joint_w0 (nj, 3) rad/s: relative angular velocity
+    ω_l − ω_k on entry): the joint's extra angular impulse pair (+Λ on k, −Λ on l) obeys
+    Λ = C (ω_rel(u) − ω_rel,0), i.e. the contact stage sees the same linearly implicit springs as the
+    joint stage. Without these rows the contact stage treats the chain as a floppy ball-joint chain:
+    an off-centre contact impulse bends it freely, and the springs of the next joint stage then push
+    back from a state they never agreed to, which pumps energy into stacked multi-segment fibres.
+    Returns the sweeps used."""
     nc = body.shape[0]
     m = mu_cos.shape[0]
     MA = np.zeros((nc, 3, 6))
@@ -684,6 +694,21 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
                 Gl[j] = G
             Kj += np.eye(3) / mass[b] - rt @ G
         Wj[j] = np.linalg.inv(Kj)
+    # spring rows: δΛ = (C A + E)⁻¹ r with A = I_k⁻¹ + I_l⁻¹ (well conditioned for any stiffness)
+    Ik = np.zeros((nj, 3, 3))
+    Il = np.zeros((nj, 3, 3))
+    Sj = np.zeros((nj, 3, 3))
+    for j in range(nj):
+        A = np.zeros((3, 3))
+        if joint_k[j] >= 0:
+            Ik[j] = world_inverse_inertia(R[joint_k[j]], inertia[joint_k[j]])
+            A += Ik[j]
+        Il[j] = world_inverse_inertia(R[joint_l[j]], inertia[joint_l[j]])
+        A += Il[j]
+        Sj[j] = np.linalg.inv(joint_compliance_inv[j] @ A + np.eye(3))
+    Lam = np.zeros((nj, 3))
+    wr = np.zeros(3)
+    rr = np.zeros(3)
     lam = np.zeros(nc)
     fr = np.zeros((nc, 2))
     dun = np.zeros(u.shape)
@@ -729,6 +754,27 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
             for z in range(3):
                 u[l, 3 + z] -= G[z, 0] * p0 + G[z, 1] * p1 + G[z, 2] * p2
             d = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            if d > change:
+                change = d
+            # implicit spring row of the same joint
+            for z in range(3):
+                wr[z] = u[l, 3 + z] - (u[k, 3 + z] if k >= 0 else 0.0) - joint_w0[j, z]
+            Cq = joint_compliance_inv[j]
+            for z in range(3):
+                rr[z] = Cq[z, 0] * wr[0] + Cq[z, 1] * wr[1] + Cq[z, 2] * wr[2] - Lam[j, z]
+            Sq = Sj[j]
+            dL = Sq @ rr
+            for z in range(3):
+                Lam[j, z] += dL[z]
+            if k >= 0:
+                dk = Ik[j] @ dL
+                for z in range(3):
+                    u[k, 3 + z] += dk[z]
+            dlv = Il[j] @ dL
+            for z in range(3):
+                u[l, 3 + z] -= dlv[z]
+            # velocity-scale change: relative angular rate change times the joint's lever
+            d = np.sqrt(dlv[0] ** 2 + dlv[1] ** 2 + dlv[2] ** 2) * np.sqrt(rl[0] ** 2 + rl[1] ** 2 + rl[2] ** 2)
             if d > change:
                 change = d
         for q in range(nc):
