@@ -547,6 +547,50 @@ class _Rows:
     primary: np.ndarray
 
 
+def _unique_joint_contacts(pairs: np.ndarray, params: np.ndarray, model: ChainModel) -> np.ndarray:
+    """(n,) bool: drop the duplicates of a contact that sits on a joint.
+
+    A partner touching a chain exactly at a joint is reported twice (closest point at the outer end of
+    segment s − 1 and at the inner end of segment s, the same material point), four times if it is a
+    joint of both chains. The copies are the same constraint with slightly different normals and gaps
+    (the joint gap): as separate rows they are redundant (a singular Delassus block, on which projected
+    Gauss–Seidel drifts) and, with their different gaps, contradictory. Keep the copy on the inner
+    segment of each joint (s − 1). "At the joint": both closest points within one fibre radius of it
+    (segments bend at the joint and the joint gap opens slightly, so the parameters are not exactly 0, 1)."""
+    if not len(pairs):
+        return np.zeros(0, bool)
+    S = model.n_segments
+    a, b = pairs[:, 0], pairs[:, 1]
+    key = np.minimum(a, b) * S + np.maximum(a, b)
+    order = np.argsort(key)
+    skey = key[order]
+    fib = model.segment_fibre
+    root = model.is_root
+
+    def lookup(aa, bb):
+        k = np.minimum(aa, bb) * S + np.maximum(aa, bb)
+        i = np.clip(np.searchsorted(skey, k), 0, len(skey) - 1)
+        found = skey[i] == k
+        return found, order[i]
+
+    drop = np.zeros(len(a), bool)
+    for side in (0, 1):
+        own = pairs[:, side]
+        other = pairs[:, 1 - side]
+        at_inner = (params[:, side] * 2 * model.half_length[own] <= model.radius[own]) & ~root[own]
+        cand = np.nonzero(at_inner)[0]
+        if not len(cand):
+            continue
+        prev = own[cand] - 1
+        found, idx = lookup(prev, other[cand])
+        # the copy's parameter on the previous segment must be at its outer end (same joint point)
+        prev_side = np.where(pairs[idx, 0] == prev, 0, 1)
+        at_outer = (1.0 - params[idx, prev_side]) * 2 * model.half_length[prev] <= model.radius[prev]
+        same_fibre = fib[prev] == fib[own[cand]]
+        drop[cand[found & at_outer & same_fibre]] = True
+    return ~drop
+
+
 class ChainSolver:
     """Moreau midpoint stepper for kinematic chains (see the module docstring for the algorithm).
 
@@ -625,6 +669,9 @@ class ChainSolver:
             fs = FibreSet(nodes, so + np.arange(F + 1), rdet)
             self._bvh = FibreBVH(fs, "aabb", "spatial")
             pairs, params = self._bvh.self_contact_pairs()
+            if len(pairs):
+                keep = _unique_joint_contacts(pairs, params, model)
+                pairs, params = pairs[keep], params[keep]
             if len(pairs):
                 a, b = pairs[:, 0], pairs[:, 1]
                 ca = x[a] + ((2 * params[:, 0] - 1) * h[a])[:, None] * d3[a]
