@@ -26,8 +26,15 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    replace v_N by the partner's current normal velocity (a block-Jacobi pass over the bodies).
    **Default** ``contact_coupling="coupled"``: the same per-contact normal rows and friction polygons
    solved by one projected (nonlinear) Gauss–Seidel over all contacts with relative velocities and
-   equal and opposite impulses (Moreau–Jean NSCD), with the fibres' joints as bilateral rows in the same
-   sweeps. The seed's per-body projection cannot hold a stack: a body squeezed between a static obstacle
+   equal and opposite impulses (Moreau–Jean NSCD), with every joint of a touched fibre as one exact 6×6
+   block in the same sweeps: the point-joint row and the joint's implicit bending/torsion spring over the
+   second half step (extra angular impulse Λ = (½Δt² K_w + Δt c)(ω_rel − ω_rel⁻), the same linearly
+   implicit spring as the joint stage). Without the spring rows the contact stage sees a floppy
+   ball-joint chain: an off-centre contact impulse bends it freely (≈ 10 rad/s per step on a stacked
+   5-segment fibre), the next joint stage's stiff springs push back, and stacked multi-segment layers
+   gained energy a hundredfold and sank through each other within 300 steps (measured; test
+   ``test_resting_stack_of_chains_...``). A contact that sits on a joint is kept once (on the inner
+   segment; :func:`_unique_joint_contacts`), not as two redundant rows. The seed's per-body projection cannot hold a stack: a body squeezed between a static obstacle
    and a falling partner gets contradictory constraints (obstacle: v_n ≥ 0, partner: v_n ≤ −gΔt), and
    crossed fibre layers sink through each other within a few hundred steps (measured, see the tests).
 3. **Harmonisation.** ``harmonisation_iterations`` > 1 repeats joints → contacts with the contact
@@ -469,6 +476,8 @@ class ChainOptions:
     contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
         constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
         velocities and equal and opposite impulses (Moreau–Jean NSCD; no sag-through in stacks).
+    obstacle_midpoints : also test the closest point of every segment axis to each obstacle when it lies
+        inside the segment (False: end points only, as in the seed, §8.6.5).
     parallel_threshold : segments from which the Numba-parallel kernels are used (serial below: the
         thread start-up costs more than it saves on small scenes).
     """
@@ -492,6 +501,7 @@ class ChainOptions:
     contact_coupling: str = "coupled"
     split_recovery: bool = True
     parallel_threshold: int = 2000
+    obstacle_midpoints: bool = True
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -545,6 +555,50 @@ class _Rows:
     gap: np.ndarray
     obstacle: np.ndarray
     primary: np.ndarray
+
+
+def _unique_joint_contacts(pairs: np.ndarray, params: np.ndarray, model: ChainModel) -> np.ndarray:
+    """(n,) bool: drop the duplicates of a contact that sits on a joint.
+
+    A partner touching a chain exactly at a joint is reported twice (closest point at the outer end of
+    segment s − 1 and at the inner end of segment s, the same material point), four times if it is a
+    joint of both chains. The copies are the same constraint with slightly different normals and gaps
+    (the joint gap): as separate rows they are redundant (a singular Delassus block, on which projected
+    Gauss–Seidel drifts) and, with their different gaps, contradictory. Keep the copy on the inner
+    segment of each joint (s − 1). "At the joint": both closest points within one fibre radius of it
+    (segments bend at the joint and the joint gap opens slightly, so the parameters are not exactly 0, 1)."""
+    if not len(pairs):
+        return np.zeros(0, bool)
+    S = model.n_segments
+    a, b = pairs[:, 0], pairs[:, 1]
+    key = np.minimum(a, b) * S + np.maximum(a, b)
+    order = np.argsort(key)
+    skey = key[order]
+    fib = model.segment_fibre
+    root = model.is_root
+
+    def lookup(aa, bb):
+        k = np.minimum(aa, bb) * S + np.maximum(aa, bb)
+        i = np.clip(np.searchsorted(skey, k), 0, len(skey) - 1)
+        found = skey[i] == k
+        return found, order[i]
+
+    drop = np.zeros(len(a), bool)
+    for side in (0, 1):
+        own = pairs[:, side]
+        other = pairs[:, 1 - side]
+        at_inner = (params[:, side] * 2 * model.half_length[own] <= model.radius[own]) & ~root[own]
+        cand = np.nonzero(at_inner)[0]
+        if not len(cand):
+            continue
+        prev = own[cand] - 1
+        found, idx = lookup(prev, other[cand])
+        # the copy's parameter on the previous segment must be at its outer end (same joint point)
+        prev_side = np.where(pairs[idx, 0] == prev, 0, 1)
+        at_outer = (1.0 - params[idx, prev_side]) * 2 * model.half_length[prev] <= model.radius[prev]
+        same_fibre = fib[prev] == fib[own[cand]]
+        drop[cand[found & at_outer & same_fibre]] = True
+    return ~drop
 
 
 class ChainSolver:
@@ -610,6 +664,10 @@ class ChainSolver:
                     lever = ends[hit] - r[s, None] * n - x[s]
                     parts.append(_Rows(s, np.full(len(s), -1), n, lever, np.zeros_like(n), phi[hit] - r[s],
                                        np.ones(len(s), bool), np.ones(len(s), bool)))
+                if o.obstacle_midpoints:
+                    mid = self._obstacle_interior(ob, model, x, d3, margin, dt)
+                    if mid is not None:
+                        parts.append(mid)
         if o.fibre_contacts and model.n_segments > 1:
             from headsim.collide import FibreBVH, FibreSet
 
@@ -625,6 +683,9 @@ class ChainSolver:
             fs = FibreSet(nodes, so + np.arange(F + 1), rdet)
             self._bvh = FibreBVH(fs, "aabb", "spatial")
             pairs, params = self._bvh.self_contact_pairs()
+            if len(pairs):
+                keep = _unique_joint_contacts(pairs, params, model)
+                pairs, params = pairs[keep], params[keep]
             if len(pairs):
                 a, b = pairs[:, 0], pairs[:, 1]
                 ca = x[a] + ((2 * params[:, 0] - 1) * h[a])[:, None] * d3[a]
@@ -651,6 +712,49 @@ class ChainSolver:
             return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
                          np.zeros(0, bool))
         return _Rows(*[np.concatenate([getattr(p, k) for p in parts]) for k in _Rows.__dataclass_fields__])
+
+    def _obstacle_interior(self, ob, model, x, d3, margin, dt, samples: int = 9):
+        """Contact rows at the closest point of each segment's axis to the distance field when it lies
+        inside the segment (end points are handled separately): φ sampled at ``samples`` points along the
+        axis, the smallest interior sample refined by a parabola through its neighbours, and kept when it
+        is below both end values and inside the detection band. Only segments whose centre is within
+        h + r + band of the iso-level are sampled (a distance field is 1-Lipschitz). With long segments on
+        a curved obstacle (the sphere scenes at 24–40 segments per 30 cm) the middle of a segment would
+        otherwise sink in while both ends rest on the surface."""
+        o = self.options
+        h, r = model.half_length, model.radius
+        spd = self._speed if self._speed is not None else np.zeros(model.n_segments)
+        band = (o.contact_band * r if ob.band is None else np.full_like(r, ob.band)) + margin + 1.5 * spd * dt
+        phic = ob.field.distance(x) - ob.level
+        cand = np.nonzero(phic < h + r + band)[0]
+        if not len(cand):
+            return None
+        ts = np.linspace(-1.0, 1.0, samples)
+        pts = x[cand, None, :] + (ts[None, :, None] * h[cand, None, None]) * d3[cand, None, :]
+        phi = (ob.field.distance(pts.reshape(-1, 3)) - ob.level).reshape(len(cand), samples)
+        i = np.argmin(phi, axis=1)
+        inner = (i > 0) & (i < samples - 1)
+        cand, i, phi = cand[inner], i[inner], phi[inner]
+        if not len(cand):
+            return None
+        rows = np.arange(len(cand))
+        f0, f1, f2 = phi[rows, i - 1], phi[rows, i], phi[rows, i + 1]
+        dts = ts[1] - ts[0]
+        den = f0 - 2 * f1 + f2
+        shift = np.where(den > 1e-300, 0.5 * (f0 - f2) / np.where(den > 1e-300, den, 1.0), 0.0)
+        t = (ts[i] + np.clip(shift, -1.0, 1.0) * dts) * h[cand]
+        p = x[cand] + t[:, None] * d3[cand]
+        ph = ob.field.distance(p) - ob.level
+        keep = (ph < np.minimum(phi[:, 0], phi[:, -1])) & (ph < r[cand] + band[cand])
+        cand, p, ph = cand[keep], p[keep], ph[keep]
+        if not len(cand):
+            return None
+        n = ob.field.normal(p)
+        ok = np.linalg.norm(n, axis=1) > 0.5
+        cand, p, ph, n = cand[ok], p[ok], ph[ok], n[ok]
+        lever = p - r[cand, None] * n - x[cand]
+        return _Rows(cand, np.full(len(cand), -1), n, lever, np.zeros_like(n), ph - r[cand],
+                     np.ones(len(cand), bool), np.ones(len(cand), bool))
 
     # -- contacts ----------------------------------------------------------------------------------
     def _targets(self, rows, gaps, beta, u, u_pre, model, Iwi, dt, sweep):
@@ -717,7 +821,7 @@ class ChainSolver:
         lam[order] = lam_sorted
         return u_out, int(sweeps.max(initial=0))
 
-    def _joint_rows(self, model, rows, x_mid, R_mid, dt):
+    def _joint_rows(self, model, rows, x_mid, R_mid, dt, u_minus=None):
         """Bilateral joint rows of every fibre with a contact: bodies k (−1: root anchor), l, levers, and the
         target relative anchor velocity −d_mid/(½Δt) that closes the mid-step gap by the step's end."""
         fib = model.segment_fibre
@@ -736,8 +840,15 @@ class ChainSolver:
         pk = np.where(is_root[:, None], model.root_point[fib[seg]], x_mid[kk] + rk)
         d = pk - (x_mid[seg] + rl)
         target = -d / (0.5 * dt)
+        # implicit spring of every joint over the second half step (§8.5.3; the joint stage's L* grows by
+        # Δt K_w Δθ_end + Δt c Δω_rel with Δθ_end = ½Δt Δω_rel): C = ½Δt² K_w + Δt c E
+        Rk = np.where(is_root[:, None, None], model.root_frame[fib[seg]], R_mid[kk])
+        Kw = np.einsum("sac,sc,sbc->sab", Rk, model.joint_stiffness[seg], Rk)
+        C = 0.5 * dt * dt * Kw + dt * model.joint_damping[seg, None, None] * np.eye(3)
+        wk = np.where(is_root[:, None], 0.0, u_minus[kk, 3:]) if u_minus is not None else 0.0
+        w0 = (u_minus[seg, 3:] - wk) if u_minus is not None else np.zeros((len(seg), 3))
         return (k.astype(np.int64), seg.astype(np.int64), np.ascontiguousarray(rk), np.ascontiguousarray(rl),
-                np.ascontiguousarray(target))
+                np.ascontiguousarray(target), np.ascontiguousarray(C), np.ascontiguousarray(w0))
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
                   x_mid=None):
@@ -752,12 +863,12 @@ class ChainSolver:
             tg = np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt))
             lam_p = np.zeros(len(pr))
             mc, ms = self._mu
-            jk, jl, jrk, jrl, jt = self._joint_rows(model, rows, x_mid, R_mid, dt)
+            jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt, u_minus)
             sw = K.project_coupled(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
                                    np.ascontiguousarray(rows.lever[pr]), np.ascontiguousarray(rows.partner_lever[pr]),
                                    np.ascontiguousarray(tg), u, model.mass, R_mid, model.inertia, mc, ms,
                                    float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p,
-                                   jk, jl, jrk, jrl, jt)
+                                   jk, jl, jrk, jrl, jt, jc, jw0)
             lam[:] = 0.0
             lam[pr] = lam_p
             sweeps_box[0] = max(sweeps_box[0], int(sw))
@@ -883,9 +994,17 @@ class ChainSolver:
             d3 = R_new[:, :, 2]
             ends = np.concatenate([x_new - model.half_length[:, None] * d3, x_new + model.half_length[:, None] * d3])
             rr = np.concatenate([model.radius, model.radius])
+            ts = np.linspace(-1.0, 1.0, 9)[1:-1]
             for ob in obstacles:
                 st.max_penetration = max(st.max_penetration,
                                          float(np.max(rr - (ob.field.distance(ends) - ob.level), initial=0.0)))
+                # interior of the segments too (7 samples on the axis of segments near the obstacle)
+                near = np.nonzero(ob.field.distance(x_new) - ob.level < model.half_length + model.radius)[0]
+                if len(near):
+                    pts = x_new[near, None, :] + (ts[None, :, None] * model.half_length[near, None, None]) * d3[near, None, :]
+                    phi = (ob.field.distance(pts.reshape(-1, 3)) - ob.level).reshape(len(near), len(ts))
+                    st.max_penetration = max(st.max_penetration,
+                                             float(np.max(model.radius[near, None] - phi, initial=0.0)))
         secs["total"] = time.perf_counter() - t_all
         self.last_stats = st
         return new

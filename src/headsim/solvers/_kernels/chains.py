@@ -616,7 +616,8 @@ def _frame(axis, n):
 
 @njit(cache=True)
 def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
-                    restitution, max_iter, tol, lam_out, joint_k, joint_l, joint_rk, joint_rl, joint_target):
+                    restitution, max_iter, tol, lam_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
+                    joint_compliance_inv, joint_w0):
     """Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
     ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
     λ_c·conv{μ_β d_β} per contact (frame t₁ from body A's axis) and the same exact 2-D block solves as
@@ -627,7 +628,16 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
     joint_target (nj, 3) m/s) are bilateral point-joint constraints (u_k + ω_k × r_k) − (u_l + ω_l × r_l)
     = target, solved in the same sweeps with their exact 3×3 K-matrix blocks (Mirtich 1996), so the
     contact impulses and the joints agree at the velocity level (the velocity-level counterpart of the
-    seed's harmonisation). Returns the sweeps used."""
+    seed's harmonisation).
+
+    Spring rows (joint_compliance_inv (nj, 3, 3): C = ½Δt² K_w + Δt c E, the implicit bending/torsion
+    spring of §8.5.3 seen over the second half step; joint_w0 (nj, 3) rad/s: relative angular velocity
+    ω_l − ω_k on entry): the joint's extra angular impulse pair (+Λ on k, −Λ on l) obeys
+    Λ = C (ω_rel(u) − ω_rel,0), i.e. the contact stage sees the same linearly implicit springs as the
+    joint stage. Without these rows the contact stage treats the chain as a floppy ball-joint chain:
+    an off-centre contact impulse bends it freely, and the springs of the next joint stage then push
+    back from a state they never agreed to, which pumps energy into stacked multi-segment fibres.
+    Returns the sweeps used."""
     nc = body.shape[0]
     m = mu_cos.shape[0]
     MA = np.zeros((nc, 3, 6))
@@ -666,24 +676,37 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
                     s += JA[c, k, z] * MA[c, q, z] + JB[c, k, z] * MB[c, q, z]
                 W[c, k, q] = s
     nj = joint_k.shape[0]
-    Wj = np.zeros((nj, 3, 3))
-    Gk = np.zeros((nj, 3, 3))  # Δω_k = Gk p (= I_k⁻¹ r̃_k p)
-    Gl = np.zeros((nj, 3, 3))
+    # joint blocks: point row and implicit spring row of a joint solved together, δ(p, Λ) = −W6 e with the
+    # exact 6×6 block  [[K_pp, K_pa], [K_ap, K_aa]]  (body k: Δv = p/m, Δω = I⁻¹(r̃_k p + Λ); body l: minus that
+    # with its own lever): K_pp = Σ(E/m − r̃ I⁻¹ r̃), K_pa = −Σ r̃ I⁻¹, K_ap = −C Σ I⁻¹ r̃, K_aa = −C Σ I⁻¹ − E
+    Ik = np.zeros((nj, 3, 3))
+    Il = np.zeros((nj, 3, 3))
+    W6 = np.zeros((nj, 6, 6))
     for j in range(nj):
-        Kj = np.zeros((3, 3))
+        M6 = np.zeros((6, 6))
+        Cq = joint_compliance_inv[j]
         for side in range(2):
             b = joint_k[j] if side == 0 else joint_l[j]
             if b < 0:
                 continue
             r = joint_rk[j] if side == 0 else joint_rl[j]
             rt = skew(r)
-            G = world_inverse_inertia(R[b], inertia[b]) @ rt
+            Iw = world_inverse_inertia(R[b], inertia[b])
             if side == 0:
-                Gk[j] = G
+                Ik[j] = Iw
             else:
-                Gl[j] = G
-            Kj += np.eye(3) / mass[b] - rt @ G
-        Wj[j] = np.linalg.inv(Kj)
+                Il[j] = Iw
+            M6[:3, :3] += np.eye(3) / mass[b] - rt @ Iw @ rt
+            M6[:3, 3:] -= rt @ Iw
+            M6[3:, :3] -= Cq @ Iw @ rt
+            M6[3:, 3:] -= Cq @ Iw
+        for z in range(3):
+            M6[3 + z, 3 + z] -= 1.0
+        W6[j] = np.linalg.inv(M6)
+    Lam = np.zeros((nj, 3))
+    e6 = np.zeros(6)
+    dq6 = np.zeros(6)
+    tk = np.zeros(3)
     lam = np.zeros(nc)
     fr = np.zeros((nc, 2))
     dun = np.zeros(u.shape)
@@ -709,25 +732,40 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
                 v0 += u[k, 0] + (u[k, 4] * rk[2] - u[k, 5] * rk[1])
                 v1 += u[k, 1] + (u[k, 5] * rk[0] - u[k, 3] * rk[2])
                 v2 += u[k, 2] + (u[k, 3] * rk[1] - u[k, 4] * rk[0])
-            Wq = Wj[j]
-            p0 = -(Wq[0, 0] * v0 + Wq[0, 1] * v1 + Wq[0, 2] * v2)
-            p1 = -(Wq[1, 0] * v0 + Wq[1, 1] * v1 + Wq[1, 2] * v2)
-            p2 = -(Wq[2, 0] * v0 + Wq[2, 1] * v1 + Wq[2, 2] * v2)
-            if k >= 0:
-                G = Gk[j]
-                im = 1.0 / mass[k]
-                u[k, 0] += p0 * im
-                u[k, 1] += p1 * im
-                u[k, 2] += p2 * im
-                for z in range(3):
-                    u[k, 3 + z] += G[z, 0] * p0 + G[z, 1] * p1 + G[z, 2] * p2
-            G = Gl[j]
-            im = 1.0 / mass[l]
-            u[l, 0] -= p0 * im
-            u[l, 1] -= p1 * im
-            u[l, 2] -= p2 * im
+            # spring row residual: C (ω_l − ω_k − ω_rel,0) − Λ
+            Cq = joint_compliance_inv[j]
             for z in range(3):
-                u[l, 3 + z] -= G[z, 0] * p0 + G[z, 1] * p1 + G[z, 2] * p2
+                e6[z] = v0
+                e6[3 + z] = u[l, 3 + z] - (u[k, 3 + z] if k >= 0 else 0.0) - joint_w0[j, z]
+            e6[1] = v1
+            e6[2] = v2
+            wa0, wa1, wa2 = e6[3], e6[4], e6[5]
+            for z in range(3):
+                e6[3 + z] = Cq[z, 0] * wa0 + Cq[z, 1] * wa1 + Cq[z, 2] * wa2 - Lam[j, z]
+            # allocation-free: δ = −W6 e, then the impulse pair (p, Λ) on k (+) and l (−)
+            for z in range(6):
+                sacc = 0.0
+                for q in range(6):
+                    sacc += W6[j, z, q] * e6[q]
+                dq6[z] = -sacc
+            for z in range(3):
+                Lam[j, z] += dq6[3 + z]
+            if k >= 0:
+                rk = joint_rk[j]
+                tk[0] = rk[1] * dq6[2] - rk[2] * dq6[1] + dq6[3]
+                tk[1] = rk[2] * dq6[0] - rk[0] * dq6[2] + dq6[4]
+                tk[2] = rk[0] * dq6[1] - rk[1] * dq6[0] + dq6[5]
+                im = 1.0 / mass[k]
+                for z in range(3):
+                    u[k, z] += dq6[z] * im
+                    u[k, 3 + z] += Ik[j, z, 0] * tk[0] + Ik[j, z, 1] * tk[1] + Ik[j, z, 2] * tk[2]
+            tk[0] = rl[1] * dq6[2] - rl[2] * dq6[1] + dq6[3]
+            tk[1] = rl[2] * dq6[0] - rl[0] * dq6[2] + dq6[4]
+            tk[2] = rl[0] * dq6[1] - rl[1] * dq6[0] + dq6[5]
+            im = 1.0 / mass[l]
+            for z in range(3):
+                u[l, z] -= dq6[z] * im
+                u[l, 3 + z] -= Il[j, z, 0] * tk[0] + Il[j, z, 1] * tk[1] + Il[j, z, 2] * tk[2]
             d = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
             if d > change:
                 change = d
