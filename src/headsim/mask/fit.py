@@ -94,6 +94,11 @@ FORCE_TOL = 1e-7
 TISSUE_MODULUS = 30e3
 TISSUE_POISSON = 0.49
 TISSUE_DENSITY = 1050.0
+#: Coulomb coefficient of silicone cushion on facial skin (module doc, "Friction"): the typical
+#: dry-skin value of Derler & Gerhardt's review (Tribol. Lett. 45:1-27, 2012).
+SKIN_SILICONE_FRICTION = 0.5
+#: stick slip eps of the lagged friction, times the median skin edge length (solvers.PlaneContact)
+FRICTION_SLIP_FRACTION = 1e-2
 
 
 @dataclass(frozen=True)
@@ -113,6 +118,8 @@ class FitOptions:
     balance_tolerance : relative mismatch of contact force and strap force above which the fit is
         refused (ConvergenceError)
     rotate : let the mask pitch and yaw about the strap point (moment balance), else translate only
+    friction : Coulomb coefficient mu between skin and cushion (0: frictionless; default
+        SKIN_SILICONE_FRICTION, module doc "Friction")
     """
 
     tissue_modulus: float = TISSUE_MODULUS
@@ -129,8 +136,11 @@ class FitOptions:
     max_contact_updates: int = 12
     balance_tolerance: float = 0.01
     rotate: bool = True
+    friction: float = SKIN_SILICONE_FRICTION
 
     def __post_init__(self):
+        if not (np.isfinite(self.friction) and 0 <= self.friction <= 3):
+            raise ParameterError(f"friction coefficient must be 0-3, got {self.friction}")
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
                      "therapy_pressure", "pressure_threshold", "balance_tolerance"):
             v = getattr(self, name)
@@ -272,6 +282,7 @@ class FitProblem:
     airway: np.ndarray
     tissue_edges: np.ndarray
     setup_seconds: float
+    skin_edge: float = 3e-3
 
     @property
     def n_vertices(self) -> int:
@@ -288,6 +299,7 @@ class FitProblem:
             "cushion_poisson": self.mask.material.poisson_ratio, "cushion_material_source": self.mask.material.source,
             "penalty_pa_per_m": self.penalty, "approach_axis": self.approach.tolist(),
             "placement_standoff_mm": self.options.standoff * 1e3,
+            "skin_cushion_friction": self.options.friction,
         }
 
 
@@ -442,7 +454,8 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
         face=face, landmarks=lm, placement=placement, mask=placed, options=options, crop_face_ids=crop_face_ids,
         n_tissue=nt, tissue_triangles=skin_tri, model=model, skin_vertices=skin, skin_areas=areas,
         mask_surface=mt.boundary_triangles + nt, mask_contact=placed.contact_triangles + nt, shell_vertices=placed.shell_vertices + nt, approach=approach,
-        penalty=penalty, airway=airway, tissue_edges=tissue.edges, setup_seconds=time.perf_counter() - t0)
+        penalty=penalty, airway=airway, tissue_edges=tissue.edges, setup_seconds=time.perf_counter() - t0,
+        skin_edge=h)
 
 
 class AxialContact:
@@ -504,10 +517,16 @@ def _axial_update(c, x, u) -> bool:
             tri[keep], wts[keep], nrm[keep] = c.tri_vertices[ii], c.weights[ii], c.normals[ii]
             has[keep] = True
     idx = np.flatnonzero(has)
+    old_active, old_force, old_anchor = c.active, c.normal_force, c.anchor
+    kept = np.zeros(n_s, dtype=bool)
+    if old_gaps is not None:
+        kept[keep] = True
     c.active = idx
     c.tri_vertices = tri[idx]
     c.weights = wts[idx]
     c.normals = nrm[idx]
+    friction_moved = _axial_friction_update(c, x, u, old_active, old_force, old_anchor, kept[idx]) \
+        if c.friction > 0 else 0.0
     if old_gaps is None:
         return True
     new_gaps = np.full(len(c.slave_vertices), np.inf)
@@ -516,7 +535,40 @@ def _axial_update(c, x, u) -> bool:
     d_old = np.where(np.isfinite(old_gaps), np.maximum(-old_gaps, 0.0), 0.0)
     d_new = np.where(np.isfinite(new_gaps), np.maximum(-new_gaps, 0.0), 0.0)
     moved = float(np.sum(c.penalty * c.slave_areas * np.abs(d_new - d_old)))
-    return moved > c.tolerance
+    return moved > c.tolerance or friction_moved > c.tolerance
+
+
+def _axial_friction_update(c, x, u, old_active, old_force, old_anchor, kept) -> float:
+    """Anchors and lagged normal forces of the skin-cushion friction (module doc, "Friction").
+
+    Uses the lagged Coulomb potential of :class:`headsim.solvers.PlaneContact` (its energy,
+    gradient and Hessian act on ``c.anchor`` and ``c.normal_force``); only the bookkeeping differs,
+    because an axial contact plane exists before its vertex touches. A vertex that keeps its plane
+    (in contact) keeps its anchor; a vertex on a freshly cast plane is anchored at the point where
+    its line along the approach axis meets the cushion (anchor 0: ``x_a - q = 0``), where an axial
+    approach touches, or, when it already penetrates (first cast of a warm start), where it is now.
+    The normal forces are refreshed to kappa a max(0, -g); returns the friction force they move,
+    mu sum |delta lambda| (N), which the outer loop drives below its tolerance (a fixed point).
+    """
+    n_s = len(c.slave_vertices)
+    rel = c._relative(x, u)
+    gaps = np.einsum("ck,ck->c", rel, c.normals)
+    anchor = np.where((gaps < 0)[:, None], rel, 0.0)
+    prev_anchor = np.full((n_s, 3), np.nan)
+    prev_force = np.zeros(n_s)
+    if len(old_active) and len(old_anchor) == len(old_active):
+        prev_anchor[old_active] = old_anchor
+    if len(old_active) and len(old_force) == len(old_active):
+        prev_force[old_active] = old_force
+    carry = kept & np.isfinite(prev_anchor[c.active]).all(axis=1)
+    anchor[carry] = prev_anchor[c.active][carry]
+    lam = c.penalty * c.slave_areas[c.active] * np.maximum(-gaps, 0.0)
+    moved = c.friction * float(np.sum(np.abs(lam - prev_force[c.active])))
+    c.anchor = anchor
+    # below the tolerance keep the lambda the last solve used, so that the returned state is an
+    # exact equilibrium of the energy it reports (as PlaneContact.update does)
+    c.normal_force = lam if moved > c.tolerance else prev_force[c.active]
+    return moved
 
 
 #: radius that turns the rotation unknowns into lengths (m of arc), ~ the mask's half size
@@ -540,7 +592,9 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     p = problem
     e_shell = max(p.mask.material.youngs_modulus, p.options.tissue_modulus)
     k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
-    contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty)
+    mu = float(p.options.friction)
+    contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty, friction=mu,
+                           friction_slip=FRICTION_SLIP_FRACTION * p.skin_edge if mu > 0 else None)
     contact.axis_of_approach = p.approach
     contact._tree = None
     contact.tolerance = tolerance
