@@ -163,9 +163,11 @@ def test_friction_coefficient_is_validated():
         FitOptions(friction=float("nan"))
 
 
-def test_cli_default_is_the_literature_value():
+def test_cli_study_and_fit_share_the_friction_defaults():
+    import typer.testing  # noqa: F401  (the CLI module needs typer)
     from headsim.cli import mask_cmd
     from headsim.mask.study import StudyOptions
 
-    assert mask_cmd.SKIN_SILICONE_FRICTION == SKIN_SILICONE_FRICTION == FitOptions().friction
-    assert StudyOptions().friction == SKIN_SILICONE_FRICTION
+    assert mask_cmd.SKIN_SILICONE_FRICTION == SKIN_SILICONE_FRICTION
+    assert mask_cmd.FRICTION.default == FitOptions().friction == StudyOptions().friction
+    assert mask_cmd._options(1, 8.0, 980.0, 4.3, "auto", 0.7).friction == 0.7

@@ -57,7 +57,7 @@ def _load_mask(spec: str, mask_units: str, rigid_plane: Optional[str], thickness
 
 
 def _options(layers: int, crop_mm: float, therapy_pa: float, threshold_kpa: float, placement: str,
-             friction: float = SKIN_SILICONE_FRICTION):
+             friction: float = 0.0):
     from headsim.mask.fit import FitOptions
 
     return FitOptions(tissue_layers=layers, crop_margin=crop_mm * 1e-3, therapy_pressure=therapy_pa,
@@ -77,8 +77,9 @@ CROP = typer.Option(8.0, "--crop", help="skin kept around the mask footprint, mm
 EDGE = typer.Option(4.0, "--mask-edge", help="built-in mask element size, mm")
 THERAPY = typer.Option(980.665, "--therapy-pressure", help="air pressure the seal must hold, Pa (10 cmH2O)")
 THRESH = typer.Option(4.266, "--threshold", help="pressure-injury threshold, kPa (32 mmHg)")
-FRICTION = typer.Option(SKIN_SILICONE_FRICTION, "--friction", help="Coulomb coefficient skin-cushion "
-                        "(nonlinear mode; 0: frictionless; default: silicone on dry skin, Derler & Gerhardt 2012)")
+FRICTION = typer.Option(0.0, "--friction", help="Coulomb coefficient skin-cushion, nonlinear mode (default 0: "
+                        f"frictionless; silicone on dry skin ~{SKIN_SILICONE_FRICTION:g}, Derler & Gerhardt 2012; the "
+                        "solve may not converge)")
 MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM contact) or condensed (linear face "
                     "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
 
@@ -103,7 +104,7 @@ def list_masks() -> None:
 
 
 def _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop, edge, therapy,
-             threshold, friction=SKIN_SILICONE_FRICTION):
+             threshold, friction=0.0):
     from headsim.mask.fit import prepare_fit
 
     mesh = _load_face(face, units)

@@ -49,7 +49,7 @@ class StudyOptions:
     crop_margin: float = 0.008
     mask_edge: float = 4e-3
     mode: str = "nonlinear"
-    friction: float = 0.5  # = headsim.mask.fit.SKIN_SILICONE_FRICTION
+    friction: float = 0.0  # frictionless, as FitOptions
 
 
 _SCHEMA = """CREATE TABLE IF NOT EXISTS cases (
