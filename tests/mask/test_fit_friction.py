@@ -171,3 +171,13 @@ def test_cli_study_and_fit_share_the_friction_defaults():
     assert mask_cmd.SKIN_SILICONE_FRICTION == SKIN_SILICONE_FRICTION
     assert mask_cmd.FRICTION.default == FitOptions().friction == StudyOptions().friction
     assert mask_cmd._options(1, 8.0, 980.0, 4.3, "auto", 0.7).friction == 0.7
+
+
+def test_cli_refuses_friction_in_the_condensed_mode(tmp_path, capsys):
+    from headsim.cli import main
+
+    out = tmp_path / "fit"
+    with pytest.raises(SystemExit) as e:
+        main(["mask", "fit", "--mode", "condensed", "--friction", "0.5", "--out", str(out)])
+    assert e.value.code == 2 and "nonlinear mode only" in capsys.readouterr().err
+    assert not out.exists()

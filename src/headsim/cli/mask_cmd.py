@@ -84,11 +84,13 @@ MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM co
                     "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
 
 
-def _check_mode(mode: str) -> str:
+def _check_mode(mode: str, friction: float = 0.0) -> str:
     from headsim.errors import ParameterError
 
     if mode not in ("nonlinear", "condensed"):
         raise ParameterError(f"--mode must be 'nonlinear' or 'condensed', got {mode!r}")
+    if mode == "condensed" and friction > 0:
+        raise ParameterError("--friction applies to the nonlinear mode only (the condensed mode has no friction model)")
     return mode
 
 
@@ -131,7 +133,7 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
     from headsim.mask.report import write_fit_report
 
     check_force(force)
-    _check_mode(mode)
+    _check_mode(mode, friction)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold, friction)
     with typer.progressbar(length=1, label=f"fit at {force:g} N ({mode})") as bar:
@@ -195,7 +197,7 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
     from headsim.mask.search import SearchOptions
 
     SearchOptions(start=start, maximum=maximum, abs_tol=tol)  # validate before the set-up work
-    _check_mode(mode)
+    _check_mode(mode, friction)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold, friction)
     run_seal_force(problem, out, start, maximum, tol, mode)
@@ -218,7 +220,7 @@ def study(faces: Path = typer.Option(..., "--faces", help="folder of face meshes
     from headsim.mask.study import StudyOptions, run_study
 
     opts = StudyOptions(units=units, start=start, maximum=maximum, abs_tol=tol, tissue_layers=layers,
-                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode), friction=friction)
+                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode, friction), friction=friction)
     summary = run_study(faces, [m.strip() for m in masks.split(",") if m.strip()], out, options=opts,
                         scheduler=scheduler, n_workers=workers, progress=True)
     typer.echo(f"{summary['n_cases']} cases ({summary['n_computed']} computed now, {summary['n_reused']} from the "
