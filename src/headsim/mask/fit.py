@@ -57,7 +57,9 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   on the bundled face and one fit costs ~6x more (measured, issue 6 follow-up, 15 N, 4 mm mesh:
   18 outer updates / 117 Newton iterations / 85 s CPU against 3 / 18 / 13 s; pitch -2.26 deg
   instead of -3.01 deg; 8.1 cm^2, peak 83 kPa, mean 20 kPa; the 12 outer updates of the
-  frictionless fit were not enough, hence ``FRICTION_CONTACT_UPDATES``).
+  frictionless fit were not enough, hence ``FRICTION_CONTACT_UPDATES``). The 10-30 N seal search
+  with 0.5 finds no seal either: at 30 N 4 leak paths, widest gap 0.65 mm, pitch -4.1 deg,
+  against 8 paths, widest 4.5 mm, pitch -7.3 deg frictionless.
 - **Limits**: the mask's pitch and yaw are linearised rotations (a point at radius r moves off
   its circle by about r theta^2 / 2: 0.25 mm at 36 mm for the 6.7 deg measured at 30 N on the
   coarse test problem); friction only on request; the cropped skin edge is free (the bone under it is fixed).
