@@ -11,6 +11,9 @@ app = typer.Typer(help="Mask fit: does a mask seal on a face, where does it leak
                        "and the least strap force that seals.", no_args_is_help=True)
 
 
+#: = headsim.mask.fit.SKIN_SILICONE_FRICTION (kept here so that the CLI starts without importing the solver)
+SKIN_SILICONE_FRICTION = 0.5
+
 def _load_face(face: Optional[Path], units: str):
     from headsim.data import face_path
     from headsim.errors import ParameterError
@@ -53,11 +56,12 @@ def _load_mask(spec: str, mask_units: str, rigid_plane: Optional[str], thickness
                           thickness=None if thickness_mm is None else thickness_mm * 1e-3)
 
 
-def _options(layers: int, crop_mm: float, therapy_pa: float, threshold_kpa: float, placement: str):
+def _options(layers: int, crop_mm: float, therapy_pa: float, threshold_kpa: float, placement: str,
+             friction: float = 0.0):
     from headsim.mask.fit import FitOptions
 
     return FitOptions(tissue_layers=layers, crop_margin=crop_mm * 1e-3, therapy_pressure=therapy_pa,
-                      pressure_threshold=threshold_kpa * 1e3, placement=placement)
+                      pressure_threshold=threshold_kpa * 1e3, placement=placement, friction=friction)
 
 
 FACE = typer.Option(None, "--face", help="face surface (.obj/.stl/.ply…); default: the bundled neutral face")
@@ -73,15 +77,20 @@ CROP = typer.Option(8.0, "--crop", help="skin kept around the mask footprint, mm
 EDGE = typer.Option(4.0, "--mask-edge", help="built-in mask element size, mm")
 THERAPY = typer.Option(980.665, "--therapy-pressure", help="air pressure the seal must hold, Pa (10 cmH2O)")
 THRESH = typer.Option(4.266, "--threshold", help="pressure-injury threshold, kPa (32 mmHg)")
+FRICTION = typer.Option(0.0, "--friction", help="Coulomb coefficient skin-cushion, nonlinear mode (default 0: "
+                        f"frictionless; silicone on dry skin ~{SKIN_SILICONE_FRICTION:g}, Derler & Gerhardt 2012; the "
+                        "solve may not converge)")
 MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM contact) or condensed (linear face "
                     "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
 
 
-def _check_mode(mode: str) -> str:
+def _check_mode(mode: str, friction: float = 0.0) -> str:
     from headsim.errors import ParameterError
 
     if mode not in ("nonlinear", "condensed"):
         raise ParameterError(f"--mode must be 'nonlinear' or 'condensed', got {mode!r}")
+    if mode == "condensed" and friction > 0:
+        raise ParameterError("--friction applies to the nonlinear mode only (the condensed mode has no friction model)")
     return mode
 
 
@@ -97,13 +106,13 @@ def list_masks() -> None:
 
 
 def _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop, edge, therapy,
-             threshold):
+             threshold, friction=0.0):
     from headsim.mask.fit import prepare_fit
 
     mesh = _load_face(face, units)
     m = _load_mask(mask, mask_units, rigid_plane, thickness, kind, edge)
     typer.echo(f"face {mesh.name}: {mesh.n_vertices} vertices; mask {m.name}")
-    problem = prepare_fit(mesh, m, _options(layers, crop, therapy, threshold, placement))
+    problem = prepare_fit(mesh, m, _options(layers, crop, therapy, threshold, placement, friction))
     d = problem.describe()
     typer.echo(f"model: {d['model_vertices']} vertices, {d['model_tets']} tets "
                f"({d['cropped_skin_vertices']} skin vertices in the mask region)")
@@ -117,16 +126,16 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
         force: float = typer.Option(15.0, "--force", help="strap force, N"),
         out: Path = typer.Option(..., "--out", help="output folder (report.html, result.json, PNG, VTU/PLY)"),
         layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, therapy_pressure: float = THERAPY,
-        threshold: float = THRESH, mode: str = MODE) -> None:
+        threshold: float = THRESH, mode: str = MODE, friction: float = FRICTION) -> None:
     """Press MASK onto FACE with strap force FORCE (N); write pressures, seal and leaks."""
     from headsim.cli._common import atomic_output_dir
     from headsim.mask.fit import check_force, problem_fit
     from headsim.mask.report import write_fit_report
 
     check_force(force)
-    _check_mode(mode)
+    _check_mode(mode, friction)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
-                       mask_edge, therapy_pressure, threshold)
+                       mask_edge, therapy_pressure, threshold, friction)
     with typer.progressbar(length=1, label=f"fit at {force:g} N ({mode})") as bar:
         if mode == "condensed":
             from headsim.mask.condensed import condense_fit, condensed_fit
@@ -182,14 +191,15 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
                tol: float = typer.Option(0.5, "--tol", help="force tolerance, N (or 5 %, the larger)"),
                out: Path = typer.Option(..., "--out", help="output folder"),
                layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE,
-               therapy_pressure: float = THERAPY, threshold: float = THRESH, mode: str = MODE) -> None:
+               therapy_pressure: float = THERAPY, threshold: float = THRESH, mode: str = MODE,
+               friction: float = FRICTION) -> None:
     """Search the least strap force with which MASK seals on FACE (bracketing + bisection, warm-started)."""
     from headsim.mask.search import SearchOptions
 
     SearchOptions(start=start, maximum=maximum, abs_tol=tol)  # validate before the set-up work
-    _check_mode(mode)
+    _check_mode(mode, friction)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
-                       mask_edge, therapy_pressure, threshold)
+                       mask_edge, therapy_pressure, threshold, friction)
     run_seal_force(problem, out, start, maximum, tol, mode)
 
 
@@ -204,12 +214,13 @@ def study(faces: Path = typer.Option(..., "--faces", help="folder of face meshes
           start: float = typer.Option(10.0, "--start", help="first force tried, N"),
           maximum: float = typer.Option(60.0, "--max-force", help="largest force tried, N"),
           tol: float = typer.Option(1.0, "--tol", help="force tolerance, N"),
-          layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, mode: str = MODE) -> None:
+          layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, mode: str = MODE,
+          friction: float = FRICTION) -> None:
     """Least seal force of every face x mask on Dask; resumable (finished cases kept in OUT/cases.sqlite)."""
     from headsim.mask.study import StudyOptions, run_study
 
     opts = StudyOptions(units=units, start=start, maximum=maximum, abs_tol=tol, tissue_layers=layers,
-                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode))
+                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode, friction), friction=friction)
     summary = run_study(faces, [m.strip() for m in masks.split(",") if m.strip()], out, options=opts,
                         scheduler=scheduler, n_workers=workers, progress=True)
     typer.echo(f"{summary['n_cases']} cases ({summary['n_computed']} computed now, {summary['n_reused']} from the "

@@ -35,7 +35,8 @@ class StudyOptions:
     units : length unit of the face files; start, maximum, abs_tol, rel_tol, max_solves : the
     search (:class:`headsim.mask.search.SearchOptions`); tissue_layers, crop_margin : the tissue
     model (:class:`headsim.mask.fit.FitOptions`); mask_edge : element size of the built-in masks;
-    mode : "nonlinear" or "condensed" (:func:`headsim.mask.search.least_seal_force`)
+    mode : "nonlinear" or "condensed" (:func:`headsim.mask.search.least_seal_force`);
+    friction : skin-cushion Coulomb coefficient of the nonlinear fit (FitOptions.friction)
     """
 
     units: str = "m"
@@ -48,6 +49,7 @@ class StudyOptions:
     crop_margin: float = 0.008
     mask_edge: float = 4e-3
     mode: str = "nonlinear"
+    friction: float = 0.0  # frictionless, as FitOptions
 
 
 _SCHEMA = """CREATE TABLE IF NOT EXISTS cases (
@@ -105,7 +107,8 @@ def run_case(face_file: str, mask_name: str, options: dict) -> dict:
     try:
         face = load_surface(face_file, units=o.units)
         problem = prepare_fit(face, make_mask(mask_name, edge_length=o.mask_edge),
-                              FitOptions(tissue_layers=o.tissue_layers, crop_margin=o.crop_margin))
+                              FitOptions(tissue_layers=o.tissue_layers, crop_margin=o.crop_margin,
+                                         friction=o.friction))
         res = least_seal_force(problem, SearchOptions(start=o.start, maximum=o.maximum, abs_tol=o.abs_tol,
                                                       rel_tol=o.rel_tol, max_solves=o.max_solves),
                                mode=o.mode)
