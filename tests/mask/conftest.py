@@ -1,10 +1,16 @@
 """Shared fixtures for the mask tests: bundled faces and their landmarks (computed once)."""
 
+import sys
+from pathlib import Path
+
 import pytest
 
 from headsim.data import face_path, population_paths
 from headsim.mask import find_landmarks
 from headsim.mesh.io import load_surface
+
+# the shared small fit problem (tests/mask/_fit_case.py): importable from every test file here, also one run alone
+sys.path.insert(0, str(Path(__file__).parent))
 
 FACE_NAMES = ["neutral", "identity000", "identity001"] + [p.stem.replace("face_", "") for p in population_paths()]
 

@@ -135,3 +135,18 @@ def test_condensed_compliance_is_the_inverse_schur_complement():
     u = body.displacements(np.array([1.0, -2.0]))
     assert u.shape == (n, 3) and np.all(u[0] == 0.0)
     np.testing.assert_allclose([u[2, 2], u[4, 0]], body.compliance @ [1.0, -2.0], rtol=1e-10)
+
+
+def test_condensed_mode_refuses_a_friction_setting():
+    """The condensed model has no friction: a problem prepared with friction is refused, not ignored."""
+    from dataclasses import replace
+
+    from _fit_case import COARSE, neutral
+    from headsim.mask import make_mask
+    from headsim.mask.condensed import condense_fit
+    from headsim.mask.fit import prepare_fit
+
+    face, lm = neutral()
+    problem = prepare_fit(face, make_mask("nasal-M", edge_length=5e-3), replace(COARSE, friction=0.5), landmarks=lm)
+    with pytest.raises(ParameterError, match="frictionless"):
+        condense_fit(problem)

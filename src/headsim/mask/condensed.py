@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from headsim.errors import ConvergenceError
+from headsim.errors import ConvergenceError, ParameterError
 from headsim.mask.fit import _ROT_RADIUS, FitProblem, FitResult, FitState, check_force
 from headsim.mask.pressure import summarize_pressure
 from headsim.mask.seal import analyse_seal
@@ -73,6 +73,9 @@ def condense_fit(problem: FitProblem) -> CondensedFit:
     from headsim.collide import TriangleBVH
     from headsim.solvers.condensation import condense
 
+    if problem.options.friction > 0:
+        raise ParameterError(f"the condensed mode is frictionless; got friction {problem.options.friction:g} "
+                             "(use the nonlinear mode for skin-cushion friction)")
     t0 = time.perf_counter()
     p = problem
     x = p.model.rest_positions
