@@ -414,8 +414,12 @@ class FibreBVH:
             ids = np.nonzero(d == lev)[0]
             if len(ids) > max_nodes_per_level:
                 ids = rng.choice(ids, max_nodes_per_level, replace=False)
-            out.append(float(self.bv.volume(self.bvs[ids]).mean()))
+            out.append(float(self._node_volumes(ids).mean()))
         return np.array(out)
+
+    def _node_volumes(self, ids: np.ndarray) -> np.ndarray:
+        """(len(ids),) BV volumes of the nodes ``ids``, m³."""
+        return self.bv.volume(self.bvs[ids])
 
 
 def fibre_self_contacts(fibres: FibreSet, variant: str = DEFAULT_VARIANT, *, k: int | None = None,
@@ -576,15 +580,7 @@ class PackedFibreBVH(FibreBVH):
         d[1] = -1  # the unused slot
         return d
 
-    def level_volumes(self, max_nodes_per_level: int = 2000, seed: int = 0) -> np.ndarray:
-        """(levels,) average box volume per tree level, m³ (Fig. 7.14 right); levels are subsampled."""
-        d = self.depths()
-        rng = np.random.default_rng(seed)
-        out = []
-        for lev in range(d.max() + 1):
-            ids = np.nonzero(d == lev)[0]
-            if len(ids) > max_nodes_per_level:
-                ids = rng.choice(ids, max_nodes_per_level, replace=False)
-            b = self.nbox[ids, :6].astype(np.float64)
-            out.append(float(np.prod(b[:, 3:] - b[:, :3], axis=1).mean()))
-        return np.array(out)
+    def _node_volumes(self, ids: np.ndarray) -> np.ndarray:
+        """(len(ids),) volumes of the packed float32 node boxes ``ids``, m³."""
+        b = self.nbox[ids, :6].astype(np.float64)
+        return np.prod(b[:, 3:] - b[:, :3], axis=1)
