@@ -127,6 +127,28 @@ def _solve6(A, b):
     return np.linalg.solve(A, b)
 
 
+@njit(cache=True, inline="always")
+def _joint_impulses_on_body(b, s, n, j0, P, R, half):
+    """Net linear impulse fl (3,) and angular impulse tq (3,) of the joint impulses P (nj, 6) on body b
+    (global segment s) of a chain of n bodies whose first joint row is j0: its inner joint b (body is
+    "l") if it exists, and its outer joint b + 1 (body is "k"), applied at the segment ends ±half s."""
+    fl = np.zeros(3)
+    tq = np.zeros(3)
+    if b >= j0:
+        jj = b - j0
+        p = P[jj, :3]
+        rl = -half[s] * R[s, :, 2]
+        fl -= p
+        tq -= P[jj, 3:] + _cross(rl, p)
+    if b + 1 < n:
+        jj = b + 1 - j0
+        p = P[jj, :3]
+        rk = half[s] * R[s, :, 2]
+        fl += p
+        tq += P[jj, 3:] + _cross(rk, p)
+    return fl, tq
+
+
 @njit(cache=True)
 def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root_frame, f,
                  dt, gravity, dx_extra, dth_extra, K, rest, damping, res, x_end, R_end, w_new):
@@ -136,22 +158,7 @@ def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root
     nj = n - j0
     for b in range(n):
         s = s0 + b
-        fl = np.zeros(3)
-        tq = np.zeros(3)
-        # inner joint b (body is "l"), if it exists
-        if b >= j0:
-            jj = b - j0
-            p = P[jj, :3]
-            rl = -half[s] * R[s, :, 2]
-            fl -= p
-            tq -= P[jj, 3:] + _cross(rl, p)
-        # outer joint b + 1 (body is "k")
-        if b + 1 < n:
-            jj = b + 1 - j0
-            p = P[jj, :3]
-            rk = half[s] * R[s, :, 2]
-            fl += p
-            tq += P[jj, 3:] + _cross(rk, p)
+        fl, tq = _joint_impulses_on_body(b, s, n, j0, P, R, half)
         Iwi = world_inverse_inertia(R[s], inertia[s])
         wn = w[s] + Iwi @ tq
         for c in range(3):
@@ -348,20 +355,7 @@ def correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, 
     # apply the impulses to the t_i velocities (Alg. 7 line 12)
     for b in range(n):
         s = s0 + b
-        fl = np.zeros(3)
-        tq = np.zeros(3)
-        if b >= j0:
-            jj = b - j0
-            p = P[jj, :3]
-            rl = -half[s] * R[s, :, 2]
-            fl -= p
-            tq -= P[jj, 3:] + _cross(rl, p)
-        if b + 1 < n:
-            jj = b + 1 - j0
-            p = P[jj, :3]
-            rk = half[s] * R[s, :, 2]
-            fl += p
-            tq += P[jj, 3:] + _cross(rk, p)
+        fl, tq = _joint_impulses_on_body(b, s, n, j0, P, R, half)
         Iwi = world_inverse_inertia(R[s], inertia[s])
         wn = w[s] + Iwi @ tq
         for c in range(3):
