@@ -572,23 +572,32 @@ def project_body(u_minus, mass, Iwi, normal, lever, axis, target, mu_cos, mu_sin
     return sweeps
 
 
+@njit(cache=True, inline="always")
+def _project_listed_body(q, bodies, row_off, u_minus, mass, R, inertia, normal, lever, target, mu_cos, mu_sin,
+                         restitution, normal_mode, qp_iter, tol, u_out, lam_out, sweeps_out):
+    """:func:`project_body` for body ``bodies[q]`` (contact rows row_off[q]:row_off[q+1]), written into
+    u_out, lam_out and sweeps_out[q]: the loop body of the batched and the serial projection."""
+    s = bodies[q]
+    a, b = row_off[q], row_off[q + 1]
+    Iwi = world_inverse_inertia(R[s], inertia[s])
+    uo = np.zeros(6)
+    lo = np.zeros(b - a)
+    sweeps_out[q] = project_body(u_minus[s], mass[s], Iwi, normal[a:b], lever[a:b], R[s, :, 2].copy(),
+                                 target[a:b], mu_cos, mu_sin, restitution, normal_mode, qp_iter, tol, uo, lo)
+    for c in range(6):
+        u_out[s, c] = uo[c]
+    for k in range(b - a):
+        lam_out[a + k] = lo[k]
+
+
 @njit(cache=True, parallel=True)
 def project_bodies_batch(bodies, row_off, u_minus, mass, R, inertia, normal, lever, target, mu_cos, mu_sin,
                          restitution, normal_mode, qp_iter, tol, u_out, lam_out, sweeps_out):
     """:func:`project_body` for every body in ``bodies`` (its contact rows row_off[q]:row_off[q+1]),
     in parallel. u_minus, u_out (S, 6); lam_out (rows,); sweeps_out (len(bodies),)."""
     for q in prange(bodies.shape[0]):
-        s = bodies[q]
-        a, b = row_off[q], row_off[q + 1]
-        Iwi = world_inverse_inertia(R[s], inertia[s])
-        uo = np.zeros(6)
-        lo = np.zeros(b - a)
-        sweeps_out[q] = project_body(u_minus[s], mass[s], Iwi, normal[a:b], lever[a:b], R[s, :, 2].copy(),
-                                     target[a:b], mu_cos, mu_sin, restitution, normal_mode, qp_iter, tol, uo, lo)
-        for c in range(6):
-            u_out[s, c] = uo[c]
-        for k in range(b - a):
-            lam_out[a + k] = lo[k]
+        _project_listed_body(q, bodies, row_off, u_minus, mass, R, inertia, normal, lever, target, mu_cos, mu_sin,
+                             restitution, normal_mode, qp_iter, tol, u_out, lam_out, sweeps_out)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -843,17 +852,8 @@ def project_bodies_serial(bodies, row_off, u_minus, mass, R, inertia, normal, le
                           restitution, normal_mode, qp_iter, tol, u_out, lam_out, sweeps_out):
     """Serial twin of :func:`project_bodies_batch`."""
     for q in range(bodies.shape[0]):
-        s = bodies[q]
-        a, b = row_off[q], row_off[q + 1]
-        Iwi = world_inverse_inertia(R[s], inertia[s])
-        uo = np.zeros(6)
-        lo = np.zeros(b - a)
-        sweeps_out[q] = project_body(u_minus[s], mass[s], Iwi, normal[a:b], lever[a:b], R[s, :, 2].copy(),
-                                     target[a:b], mu_cos, mu_sin, restitution, normal_mode, qp_iter, tol, uo, lo)
-        for c in range(6):
-            u_out[s, c] = uo[c]
-        for k in range(b - a):
-            lam_out[a + k] = lo[k]
+        _project_listed_body(q, bodies, row_off, u_minus, mass, R, inertia, normal, lever, target, mu_cos, mu_sin,
+                             restitution, normal_mode, qp_iter, tol, u_out, lam_out, sweeps_out)
 
 
 @njit(cache=True)
