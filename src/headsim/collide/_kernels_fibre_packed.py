@@ -13,10 +13,12 @@ segment going by its midpoint, fallbacks), stopped at ``leaf_size`` segments, an
   variants and brute force).
 
 Queries run the simultaneous descent of Alg. 3 with three changes that do not change the result: a
-child pair is BV-tested before it is pushed, a leaf pair first keeps the segments of each leaf whose
+child pair is BV-tested before it is pushed, a leaf pair first keeps the segments of one leaf whose
 box overlaps the other leaf's box, and every remaining segment pair gets a segment-box test before the
-exact capsule test. Counters as in ``_kernels_fibre_traverse`` (0 BV tests incl. segment-box tests,
-1 overlapping BV pairs, 2 segment-box tests (the lowest level), 3 capsule tests, 4 contacts).
+exact capsule test. The leaf stage works on structure-of-arrays leaf records (:func:`leaf_lanes`), one
+SIMD pass per segment against all segments of the other leaf. Counters as in
+``_kernels_fibre_traverse`` (0 BV tests incl. segment-box tests, 1 overlapping BV pairs, 2 segment-box
+tests (the lowest level, counted per lane tested), 3 capsule tests, 4 contacts).
 """
 
 from __future__ import annotations
@@ -347,14 +349,52 @@ def _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out):
     return hit, out_pairs, out_par, n_out
 
 
+@njit(cache=True, parallel=True)
+def leaf_lanes(leaf_node, first, count, sbox, S, lfirst):
+    """Leaf records for :func:`traverse_packed`: S[e, c, a] = coordinate c (min x, y, z, max x, y, z)
+    of the box of lane a of leaf e (the segment in slot ``first + a``), empty lanes (+inf, −inf);
+    lfirst[e] = the leaf's first slot. Structure of arrays, so one leaf-against-box test is a SIMD pass."""
+    W = S.shape[2]
+    for e in prange(leaf_node.shape[0]):
+        u = leaf_node[e]
+        k0 = first[u]
+        lfirst[e] = k0
+        for a in range(W):
+            for c in range(3):
+                if a < count[u]:
+                    S[e, c, a] = sbox[k0 + a, c]
+                    S[e, 3 + c, a] = sbox[k0 + a, 3 + c]
+                else:
+                    S[e, c, a] = _POS
+                    S[e, 3 + c, a] = _NEG
+
+
+@njit(cache=True, inline="always")
+def _lane_hits(S, e, x0, y0, z0, x1, y1, z1, m):
+    """m[a] = does lane a of leaf record e overlap the box (x0, y0, z0)–(x1, y1, z1)? One branch-free
+    pass over the W lanes (SIMD-vectorised by LLVM); empty lanes never overlap."""
+    W = S.shape[2]
+    for a in range(W):
+        m[a] = ((S[e, 0, a] <= x1) & (x0 <= S[e, 3, a]) & (S[e, 1, a] <= y1) & (y0 <= S[e, 4, a])
+                & (S[e, 2, a] <= z1) & (z0 <= S[e, 5, a]))
+
 @njit(cache=True, nogil=True)
-def traverse_packed(tasks, nbox, nmeta, sbox, smeta, seg64, first_only, counters):
+def traverse_packed(tasks, nbox, nmeta, S, lfirst, sid, seg64, first_only, counters):
     """Simultaneous descent (Alg. 3) from every task (T, 2): (u, u) = self pair, (u, v) = overlapping pair.
 
     nbox (n, 8) float32 node records: box in columns 0–5; its int32 view ``nmeta``: column 6 = first
-    child (inner) or −(first slot + 1) (leaf), column 7 = segment count. sbox (S, 8) float32 segment
-    records in slot order, int32 view ``smeta``: column 6 = global segment id, 7 = fibre id; seg64
+    child (inner) or −(leaf record + 1) (leaf), column 7 = segment count. S (L, 6, W) float32 leaf
+    records (:func:`leaf_lanes`): the segment boxes of every leaf as W lanes, structure of arrays;
+    lfirst (L,) the slot of lane 0; sid (S, 2) int32 global segment id and fibre id per slot; seg64
     (S, 8) float64 endpoints and radius per slot (:func:`refit_packed`).
+
+    A leaf pair tests the lanes of one leaf against the other leaf's box in one vector pass, then every
+    kept segment against all lanes of the other leaf in one pass (a segment of the other leaf that
+    touches it lies in this leaf's box, so filtering the other side would not remove a pair). Measured
+    on the full head (2.4 M segments): 1.5 s against 2.1 s CPU for the scalar per-pair tests on
+    float32 array-of-structure records, same contact set.
+    ``first_only``: stop after the first leaf (pair) that gave a contact and return that one contact
+    (no early exit inside the leaf loops: a break there measured 2× slower, it blocks vectorisation).
     Returns (pairs (n, 2) int64 with pairs[:, 0] < pairs[:, 1], params (n, 2) float64: s, t), unsorted.
     """
     out_pairs = np.empty((1024, 2), np.int64)
@@ -362,8 +402,9 @@ def traverse_packed(tasks, nbox, nmeta, sbox, smeta, seg64, first_only, counters
     n_out = 0
     scap = 256
     stack = np.empty((scap, 2), np.int64)
-    ia = np.empty(64, np.int64)
-    jb = np.empty(64, np.int64)
+    W = S.shape[2]
+    mu = np.zeros(W, np.bool_)
+    mv = np.zeros(W, np.bool_)
     n_bv = 0
     n_ovl = 0
     n_seg = 0
@@ -376,6 +417,9 @@ def traverse_packed(tasks, nbox, nmeta, sbox, smeta, seg64, first_only, counters
         stack[0, 1] = tasks[task, 1]
         sp = 1
         while sp > 0:
+            if first_only and n_out > 0:
+                done = True
+                break
             sp -= 1
             u = stack[sp, 0]
             v = stack[sp, 1]
@@ -394,75 +438,52 @@ def traverse_packed(tasks, nbox, nmeta, sbox, smeta, seg64, first_only, counters
                         stack[sp, 0], stack[sp, 1] = cu, cu + 1
                         sp += 1
                     continue
-                # all pairs inside one leaf
-                k0 = -cu - 1
-                k1 = k0 + nmeta[u, 7]
-                for i in range(k0, k1):
-                    for j in range(i + 1, k1):
-                        n_seg += 1
-                        if not _ovl(sbox, i, sbox, j):
+                e = -cu - 1
+                n = nmeta[u, 7]
+                k0 = lfirst[e]
+                for p in range(n - 1):
+                    _lane_hits(S, e, S[e, 0, p], S[e, 1, p], S[e, 2, p], S[e, 3, p], S[e, 4, p], S[e, 5, p], mv)
+                    n_seg += n - 1 - p
+                    i = k0 + p
+                    for q in range(p + 1, n):
+                        if not mv[q]:
                             continue
-                        sa = smeta[i, 6]
-                        sb = smeta[j, 6]
-                        if smeta[i, 7] == smeta[j, 7] and abs(sb - sa) <= 1:
+                        j = k0 + q
+                        sa, sb = sid[i, 0], sid[j, 0]
+                        if sid[i, 1] == sid[j, 1] and abs(sb - sa) <= 1:
                             continue
                         n_prim += 1
                         if sa < sb:
                             hit, out_pairs, out_par, n_out = _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out)
                         else:
                             hit, out_pairs, out_par, n_out = _emit(j, i, sb, sa, seg64, out_pairs, out_par, n_out)
-                        if hit and first_only:
-                            done = True
-                            break
-                    if done:
-                        break
-                if done:
-                    break
                 continue
             cv = nmeta[v, 6]
             if cu < 0 and cv < 0:
-                # leaf pair: keep the segments of each leaf that overlap the other leaf's box
-                na = 0
-                k0 = -cu - 1
-                for i in range(k0, k0 + nmeta[u, 7]):
-                    n_seg += 1
-                    if _ovl(sbox, i, nbox, v):
-                        ia[na] = i
-                        na += 1
-                if na == 0:
-                    continue
-                nb = 0
-                k0 = -cv - 1
-                for j in range(k0, k0 + nmeta[v, 7]):
-                    n_seg += 1
-                    if _ovl(sbox, j, nbox, u):
-                        jb[nb] = j
-                        nb += 1
-                for p in range(na):
-                    i = ia[p]
-                    for q in range(nb):
-                        j = jb[q]
-                        n_seg += 1
-                        if not _ovl(sbox, i, sbox, j):
+                eu, ev = -cu - 1, -cv - 1
+                nu, nv = nmeta[u, 7], nmeta[v, 7]
+                _lane_hits(S, eu, nbox[v, 0], nbox[v, 1], nbox[v, 2], nbox[v, 3], nbox[v, 4], nbox[v, 5], mu)
+                n_seg += nu
+                ku, kv = lfirst[eu], lfirst[ev]
+                for p in range(nu):
+                    if not mu[p]:
+                        continue
+                    _lane_hits(S, ev, S[eu, 0, p], S[eu, 1, p], S[eu, 2, p], S[eu, 3, p], S[eu, 4, p], S[eu, 5, p], mv)
+                    n_seg += nv
+                    i = ku + p
+                    for q in range(nv):
+                        if not mv[q]:
                             continue
-                        sa = smeta[i, 6]
-                        sb = smeta[j, 6]
-                        if smeta[i, 7] == smeta[j, 7] and abs(sb - sa) <= 1:
+                        j = kv + q
+                        sa, sb = sid[i, 0], sid[j, 0]
+                        if sid[i, 1] == sid[j, 1] and abs(sb - sa) <= 1:
                             continue
                         n_prim += 1
                         if sa < sb:
                             hit, out_pairs, out_par, n_out = _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out)
                         else:
                             hit, out_pairs, out_par, n_out = _emit(j, i, sb, sa, seg64, out_pairs, out_par, n_out)
-                        if hit and first_only:
-                            done = True
-                            break
-                    if done:
-                        break
-                if done:
-                    break
                 continue
-            # descend the node with more segments (a leaf is never descended)
             n_bv += 2
             if cu < 0 or (cv >= 0 and nmeta[v, 7] > nmeta[u, 7]):
                 if _ovl(nbox, u, nbox, cv + 1):
@@ -486,6 +507,8 @@ def traverse_packed(tasks, nbox, nmeta, sbox, smeta, seg64, first_only, counters
     counters[1] += n_ovl
     counters[2] += n_seg
     counters[3] += n_prim
+    if first_only:
+        n_out = min(n_out, 1)
     counters[4] += n_out
     return out_pairs[:n_out].copy(), out_par[:n_out].copy()
 

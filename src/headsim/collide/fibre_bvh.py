@@ -462,6 +462,9 @@ class PackedFibreBVH(FibreBVH):
         box ``[min x, y, z, max x, y, z]`` (m) in columns 0–5, int32 ids in 6–7
         (``_kernels_fibre_packed.traverse_packed``). Node 1 is an unused slot.
     seg64 : (S, 8) float64 endpoints (m) and radius of every slot's segment (exact test).
+    leaf_boxes : (L, 6, W) float32 segment boxes of every leaf as W = 8·⌈leaf_size/8⌉ lanes (structure of
+        arrays, empty lanes +inf/−inf), leaf_first : (L,) first slot of every leaf, sid : (S, 2) int32
+        segment and fibre id per slot: the records of the vectorised leaf stage.
     """
 
     def __init__(self, fibres: FibreSet, leaf_size: int = 8, *, split: str = "sah", threads: int | None = None):
@@ -514,16 +517,24 @@ class PackedFibreBVH(FibreBVH):
         self._slot_node = np.ascontiguousarray(f.segment_start[self.perm])
         self._slot_radius = np.ascontiguousarray(f.radius[self.perm])
         nmeta, smeta = self.nbox.view(np.int32), self.sbox.view(np.int32)
-        nmeta[:, 6] = np.where(self.child >= 0, self.child, -(self.first + 1))
+        self._leaf_node = np.flatnonzero(self.child < 0)
+        leaf_of_node = np.full(n, -1, np.int64)
+        leaf_of_node[self._leaf_node] = np.arange(len(self._leaf_node))
+        nmeta[:, 6] = np.where(self.child >= 0, self.child, -(leaf_of_node + 1))
         nmeta[:, 7] = self.count
         smeta[:, 6] = self.perm
         smeta[:, 7] = f.segment_fibre[self.perm]
+        self.sid = np.ascontiguousarray(smeta[:, 6:8])
+        lanes = 8 * ((self.leaf_size + 7) // 8)
+        self.leaf_boxes = np.empty((len(self._leaf_node), 6, lanes), np.float32)
+        self.leaf_first = np.empty(len(self._leaf_node), np.int64)
         self._refit()
         self._quality_ref = self._quality()
 
     def _refit(self):
         P.refit_packed(self.nodes, self._slot_node, self._slot_radius, self.child, self.first, self.count,
                        self.sbox, self.nbox, self.seg64)
+        P.leaf_lanes(self._leaf_node, self.first, self.count, self.sbox, self.leaf_boxes, self.leaf_first)
 
     def update(self, nodes=None) -> float:
         """Refit all boxes to new node positions (N, 3) m without changing the tree (Alg. 5). Returns s."""
@@ -549,8 +560,8 @@ class PackedFibreBVH(FibreBVH):
         counters = np.zeros(T.N_COUNTERS, np.int64)
 
         def run(tasks, first_only, c):
-            return P.traverse_packed(tasks, self.nbox, self.nbox.view(np.int32), self.sbox, self.sbox.view(np.int32),
-                                     self.seg64, first_only, c)
+            return P.traverse_packed(tasks, self.nbox, self.nbox.view(np.int32), self.leaf_boxes, self.leaf_first,
+                                     self.sid, self.seg64, first_only, c)
 
         if mode == "first" or self.threads <= 1 or self.n_nodes < 64:
             pairs, params = run(np.zeros((1, 2), np.int64), mode == "first", counters)
