@@ -50,7 +50,10 @@ stays the default; the membrane option is kept for that comparison.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -208,6 +211,9 @@ class MaskModel:
     tet_modulus : (m,) float64 Pa or None: per-tet Young's modulus of a homogenised cushion whose
         stiffness varies along the outline (the built-in membrane cushions,
         :func:`membrane_cushion_modulus`); None: ``material.youngs_modulus`` everywhere.
+    section_grid : (outline samples, rows, columns) of a swept parametric mask, whose vertex
+        ``(sample * rows + row) * columns + column`` lies in row ``row`` (0 = the skin-side edge) of
+        the cross-section at that outline sample; None for meshes from files.
     """
 
     name: str
@@ -220,6 +226,7 @@ class MaskModel:
     up: np.ndarray
     material: CushionMaterial = field(default_factory=lambda: CUSHION_SILICONE)
     tet_modulus: np.ndarray | None = None
+    section_grid: tuple[int, int, int] | None = None
 
     def __post_init__(self):
         tm = self.tetmesh
@@ -330,8 +337,18 @@ class MaskDesign:
     bridge_height: float = 8e-3   # cushion height over the bridge
     shell_thickness: float = 2.5e-3
     corner_radius: float = 3e-3
+    #: Fourier coefficients ((a_0..a_K), (b_0..b_K)), m at size M, of how far the edge is moved towards
+    #: the face as a function of the outline angle (:func:`outline_angle`): the contour to a reference
+    #: face (:mod:`headsim.mask.contour`). None: the analytic saddle alone.
+    edge_correction: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def __post_init__(self):
+        if self.edge_correction is not None:
+            a, b = self.edge_correction
+            if len(a) != len(b) or len(a) < 1 or not np.isfinite(np.r_[a, b]).all():
+                raise ParameterError("mask design: edge_correction must be two equally long finite coefficient lists")
+            if np.abs(np.r_[a, b]).sum() > 0.05:
+                raise ParameterError("mask design: edge_correction moves the edge by more than 5 cm")
         for name in ("width", "height", "cheek_depth", "cushion_width", "bridge_height",
                      "shell_thickness", "corner_radius"):
             if not getattr(self, name) > 0:
@@ -350,10 +367,52 @@ _DESIGNS = {
 }
 _SIZES = {"S": 0.9, "M": 1.0, "L": 1.1}
 
+#: The contour of the built-in cushions to the bundled mean face (written by
+#: ``python -m headsim.mask.contour --write``; :mod:`headsim.mask.contour`).
+CONTOUR_FILE = Path(__file__).with_name("cushion_contours.json")
+
+
+@lru_cache(maxsize=1)
+def _stored_contours() -> dict:
+    if not CONTOUR_FILE.exists():
+        return {}
+    return json.loads(CONTOUR_FILE.read_text())
+
+
+def design_of(kind: str, contour: bool = True) -> MaskDesign:
+    """The built-in design of ``kind`` ("nasal" or "oronasal") at size M; ``contour``: with its edge
+    contoured to the mean face (the stored :data:`CONTOUR_FILE`), else the analytic saddle alone."""
+    if kind not in _DESIGNS:
+        raise ParameterError(f"unknown mask kind {kind!r}; use one of {', '.join(_DESIGNS)}")
+    design = _DESIGNS[kind]
+    stored = _stored_contours().get(kind) if contour else None
+    if stored is not None:
+        design = replace(design, edge_correction=(tuple(stored["a"]), tuple(stored["b"])))
+    return design
+
 
 def mask_catalogue() -> list[str]:
     """Names of the built-in masks: ``nasal-S`` … ``oronasal-L``."""
     return [f"{kind}-{size}" for kind in _DESIGNS for size in _SIZES]
+
+
+def outline_angle(design: MaskDesign, scale: float, xy: np.ndarray) -> np.ndarray:
+    """(n,) rad: the angle of outline points ``xy`` (n, 2), m (mask frame), around the outline centre,
+    with the axes scaled to the outline's half width and half height (0 at the wearer's left cheek,
+    pi/2 over the bridge); the same for every size."""
+    xy = np.asarray(xy, dtype=np.float64)
+    return np.arctan2((xy[:, 1] - design.y_offset * scale) / (0.5 * design.height * scale),
+                      xy[:, 0] / (0.5 * design.width * scale))
+
+
+def edge_correction_at(design: MaskDesign, phi: np.ndarray) -> np.ndarray:
+    """(n,) m at size M: the design's contour correction at outline angles ``phi`` (0 without one)."""
+    phi = np.asarray(phi, dtype=np.float64)
+    if design.edge_correction is None:
+        return np.zeros_like(phi)
+    a, b = (np.asarray(c) for c in design.edge_correction)
+    k = np.arange(len(a))
+    return np.cos(np.outer(phi, k)) @ a + np.sin(np.outer(phi, k)) @ b
 
 
 def _outline(design: MaskDesign, scale: float, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -371,7 +430,8 @@ def _outline(design: MaskDesign, scale: float, n: int) -> tuple[np.ndarray, np.n
     sin_t = rel[:, 1] / (0.5 * h)
     sin_t = np.clip(sin_t, -1.0, 1.0)
     z_edge = scale * (-design.cheek_depth + design.bridge_rise * np.maximum(sin_t, 0.0) ** 2
-                      + design.lip_rise * np.maximum(-sin_t, 0.0) ** 2)
+                      + design.lip_rise * np.maximum(-sin_t, 0.0) ** 2
+                      - edge_correction_at(design, outline_angle(design, scale, pts)))
     return pts, normal, z_edge
 
 
@@ -464,17 +524,21 @@ def build_parametric_mask(design: MaskDesign, scale: float = 1.0, edge_length: f
         tet_modulus = membrane_cushion_modulus(membrane, w, free_height)
     return MaskModel(name=label, kind=design.kind, size=size, tetmesh=tm, contact_triangles=contact,
                      airway_center=np.zeros(3), airway_axis=np.array([0.0, 0.0, -1.0]),
-                     up=np.array([0.0, 1.0, 0.0]), material=material, tet_modulus=tet_modulus)
+                     up=np.array([0.0, 1.0, 0.0]), material=material, tet_modulus=tet_modulus,
+                     section_grid=(n_samples, n_rows, n_cols))
 
 
 def make_mask(name: str, edge_length: float = 3e-3, material: CushionMaterial | None = None,
-              cushion: str = "solid") -> MaskModel:
+              cushion: str = "solid", contour: bool = True) -> MaskModel:
     """A built-in mask by name (``nasal-M``, ``oronasal-L``, … see :func:`mask_catalogue`).
 
-    cushion : "membrane" (default: the hollow 3 mm silicone membrane cushion, homogenised per section,
-        :func:`membrane_cushion_modulus`, material :data:`MEMBRANE_CUSHION`) or "solid" (a uniform
-        solid cushion, material :data:`CUSHION_SILICONE`, the earlier model)
+    cushion : "solid" (default: a uniform solid cushion, material :data:`CUSHION_SILICONE`) or
+        "membrane" (the hollow 3 mm silicone membrane cushion homogenised per section,
+        :func:`membrane_cushion_modulus`, material :data:`MEMBRANE_CUSHION`; too soft, module doc)
     material : overrides the cushion's material (its modulus is used only with ``cushion="solid"``)
+    contour : True (default): the skin-side edge contoured to the bundled mean face, as a
+        manufacturer designs a cushion on a reference head form (:mod:`headsim.mask.contour`);
+        False: the analytic three-height saddle alone
     """
     if cushion not in ("membrane", "solid"):
         raise ParameterError(f"cushion must be 'membrane' or 'solid', got {cushion!r}")
@@ -485,5 +549,5 @@ def make_mask(name: str, edge_length: float = 3e-3, material: CushionMaterial | 
     if kind not in _DESIGNS or size.upper() not in _SIZES:
         raise ParameterError(f"unknown mask {name!r}; built-in masks: {', '.join(mask_catalogue())}")
     size = size.upper()
-    return build_parametric_mask(_DESIGNS[kind], scale=_SIZES[size], edge_length=edge_length,
+    return build_parametric_mask(design_of(kind, contour), scale=_SIZES[size], edge_length=edge_length,
                                  name=f"{kind}-{size}", size=size, material=material, membrane=membrane)
