@@ -9,6 +9,9 @@ Measured in one process:
 - one fit (quasi-static FEM contact, force control) at 15 N from first contact (cold), and one
   warm-started at 14 N;
 - the least-seal-force search (bracketing + bisection, warm-started; ``least_seal_force``);
+- the sparse direct solve inside Newton: the symmetric-mode SuperLU factorisation
+  (:func:`headsim.solvers.newton.factorize_spd`) against SuperLU's default partial pivoting (the
+  solver before) on the Hessians of one fit, recorded as they are solved;
 - the condensed re-fit mode (:mod:`headsim.mask.condensed`): the one-off condensation, one fit at
   15 N (and the LCP alone), its search, and its numbers next to the nonlinear fit's;
 - the seed-faithful loop (Heinze ch. 3, 5): the same tissue + mask tet meshes as mass-spring bodies
@@ -94,6 +97,45 @@ def seed_loop(problem, force: float, n_steps: int):
     return per_step, dt, steps, steps * per_step
 
 
+def factorisation_section(problem, warm_start) -> None:
+    """Symmetric-mode vs partial-pivoting SuperLU on the Newton Hessians of one (warm) 15 N fit."""
+    import scipy.sparse.linalg as spla
+
+    from headsim.mask.fit import problem_fit
+    from headsim.solvers import newton
+
+    systems = []
+    solve = newton.solve_direct
+
+    def recording(a, b, *args, **kw):
+        systems.append((a, b))
+        return solve(a, b, *args, **kw)
+
+    newton.solve_direct = recording
+    try:
+        problem_fit(problem, 15.0, warm_start=warm_start)
+    finally:
+        newton.solve_direct = solve
+    cpu = {"symmetric": 0.0, "pivoting": 0.0}
+    fill = {"symmetric": 0, "pivoting": 0}
+    res = {"symmetric": 0.0, "pivoting": 0.0}
+    for a, b in systems:
+        a = a.tocsc()
+        for name, factor in (("symmetric", newton.factorize_spd),
+                             ("pivoting", lambda m: spla.splu(m, permc_spec="MMD_AT_PLUS_A"))):
+            c = time.process_time()
+            lu = factor(a)
+            x = lu.solve(b)
+            cpu[name] += time.process_time() - c
+            fill[name] = max(fill[name], lu.L.nnz + lu.U.nnz)
+            res[name] = max(res[name], float(np.linalg.norm(a @ x - b) / np.linalg.norm(b)))
+    n = systems[0][0].shape[0] if systems else 0
+    print(f"direct solve, {len(systems)} Newton Hessians of a 15 N fit ({n} unknowns): symmetric-mode SuperLU "
+          f"{cpu['symmetric']:.2f} s CPU (fill <= {fill['symmetric'] / 1e6:.2f} M, residual <= {res['symmetric']:.1e}), "
+          f"partial pivoting {cpu['pivoting']:.2f} s CPU (fill <= {fill['pivoting'] / 1e6:.2f} M, residual <= "
+          f"{res['pivoting']:.1e}): ratio {cpu['pivoting'] / max(cpu['symmetric'], 1e-12):.2f} x")
+
+
 def condensed_section(problem, nonlinear_15, search_options) -> None:
     """The condensed mode: condensation, one fit, the LCP alone, its search; vs the nonlinear fit."""
     from headsim.mask.condensed import condense_fit, condensed_fit
@@ -156,6 +198,7 @@ def main(argv=None) -> None:
     for c in res.curve:
         print(f"   F = {c.force:6.2f} N: area {c.contact_area_cm2:6.2f} cm², peak {c.peak_pressure_kpa:7.1f} kPa, "
               f"mean {c.mean_pressure_kpa:6.1f} kPa, {'sealed' if c.sealed else 'leaks'}")
+    factorisation_section(problem, cold.state)
     condensed_section(problem, cold, opts)
     n_steps = 3 if args.quick else 10
     per_step, dt, steps, t_eq = seed_loop(problem, 15.0, n_steps)

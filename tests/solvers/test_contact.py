@@ -109,6 +109,28 @@ def test_warm_start_converges_immediately():
     assert np.allclose(again.positions, first.positions, atol=1e-12)
 
 
+def test_inexact_updates_option_is_validated_and_keeps_the_uniaxial_answer():
+    from headsim.solvers.contact import QuasiStaticOptions
+
+    for bad in (0.0, 1.0, -1e-3):
+        with pytest.raises(ParameterError):
+            QuasiStaticOptions(inexact_updates=bad)
+    mesh = block_tetmesh((H, H, H), (2, 2, 2))
+    model = fem_from_tetmesh(mesh, MAT)
+    x = mesh.vertices
+    areas = surface_vertex_areas(len(x), _top(mesh, H), x)
+    top = np.flatnonzero(areas > 0)
+    plate = box((3 * H, 3 * H, 0.5 * H), center=(0.5 * H, 0.5 * H, 1.25 * H))
+    kappa = 1e3 * MAT.young_modulus / H
+    p = 1e-3 * MAT.young_modulus
+    contact = PlaneContact(top, areas[top], plate.triangles, kappa, rigid_vertices=plate.vertices, driver=0,
+                           slave_edges=mesh.edges)
+    res = solve_quasi_static(model, [contact], [RigidDriver((0, 0, -1), force=p * H * H)], fixed_dofs=_rollers(x),
+                             options=QuasiStaticOptions(inexact_updates=1e-3))
+    assert res.driver_displacement[0] == pytest.approx(p / MAT.young_modulus * H + p / kappa, rel=2e-3)
+    assert res.driver_forces[0] == pytest.approx(-p * H * H, rel=1e-6)  # finished to the full tolerance
+
+
 def test_mass_spring_model_works_with_quasi_static_contact():
     mesh = block_tetmesh((H, H, H), (2, 2, 2))
     mesh = replace(mesh, fixed=np.isclose(mesh.vertices[:, 2], 0.0))

@@ -4,7 +4,8 @@
   clamping the eigenvalues of the full 9 x 9 d2Psi/dF2 numerically;
 - the vertex-level CSR pattern with a Numba scatter vs SciPy's COO -> CSR sum;
 - Newton with AMG-preconditioned CG (hierarchy reuse, Eisenstat-Walker forcing) vs the sparse direct
-  solve on the same contact problem.
+  solve on the same contact problem;
+- the symmetric-mode (static pivot) sparse LU vs SuperLU with partial pivoting.
 """
 
 from dataclasses import replace
@@ -21,7 +22,10 @@ from headsim.solvers.contact import QuasiStaticOptions, SphereObstacle, RigidDri
 from headsim.solvers.fem import fem_from_tetmesh
 from headsim.solvers.grids import block_tetmesh
 from headsim.solvers.materials import Material
-from headsim.solvers.newton import AmgPreconditioner, NewtonOptions, _forcing_term, rigid_body_modes
+import scipy.sparse.linalg as spla
+
+from headsim.solvers.newton import AmgPreconditioner, NewtonOptions, _forcing_term, factorize_spd, \
+    rigid_body_modes, solve_direct
 
 MAT = Material.from_kpa(10.0, 0.3, 1000.0)
 
@@ -130,3 +134,26 @@ def test_amg_newton_matches_direct_newton_on_a_contact_problem():
     assert a.driver_displacement[0] == pytest.approx(d.driver_displacement[0], rel=1e-6)
     assert np.abs(a.positions - d.positions).max() < 1e-6 * abs(d.driver_displacement[0])
     assert a.timings["linear_solve"] > 0 and "amg_setup" in a.timings
+
+
+def test_symmetric_mode_lu_matches_partial_pivoting_on_an_fem_hessian():
+    mesh = block_tetmesh((0.02, 0.02, 0.01), (8, 8, 4))
+    mesh = replace(mesh, fixed=np.isclose(mesh.vertices[:, 2], 0.0))
+    m = fem_from_tetmesh(mesh, MAT)
+    free = np.flatnonzero(np.repeat(~m.fixed, 3))
+    a = m.hessian(m.rest_positions).tocsc()[free][:, free]
+    b = np.random.default_rng(1).standard_normal(len(free))
+    ref = spla.spsolve(a, b, permc_spec="MMD_AT_PLUS_A")
+    x = solve_direct(a, b)
+    assert np.linalg.norm(x - ref) <= 1e-10 * np.linalg.norm(ref)
+
+
+def test_direct_solve_refines_or_falls_back_where_static_pivots_are_tiny():
+    # symmetric indefinite: a 1e-14 pivot first, so static pivoting loses ~10 digits before refinement
+    e = 1e-14
+    a = sp.csc_matrix(np.array([[e, 1.0, 0.0], [1.0, e, 0.0], [0.0, 0.0, 2.0]]))
+    b = np.array([1.0, 2.0, 3.0])
+    x0 = factorize_spd(a).solve(b)
+    assert np.linalg.norm(a @ x0 - b) > 1e-6 * np.linalg.norm(b)  # the unrefined static-pivot solve is off
+    x = solve_direct(a, b)
+    assert np.linalg.norm(a @ x - b) <= 1e-12 * np.linalg.norm(b)
