@@ -369,14 +369,48 @@ def leaf_lanes(leaf_node, first, count, sbox, S, lfirst):
                     S[e, 3 + c, a] = _NEG
 
 
+def _lane_table() -> np.ndarray:
+    """(256, 9) int64: for every 8-bit mask, its number of set bits, then their positions."""
+    t = np.zeros((256, 9), np.int64)
+    for m in range(256):
+        k = 0
+        for a in range(8):
+            if m >> a & 1:
+                t[m, 1 + k] = a
+                k += 1
+        t[m, 0] = k
+    return t
+
+
+#: set-bit table of the lane masks (a loop over the set bits only: no branch per empty lane)
+_LANES = _lane_table()
+
+
 @njit(cache=True, inline="always")
-def _lane_hits(S, e, x0, y0, z0, x1, y1, z1, m):
-    """m[a] = does lane a of leaf record e overlap the box (x0, y0, z0)–(x1, y1, z1)? One branch-free
-    pass over the W lanes (SIMD-vectorised by LLVM); empty lanes never overlap."""
-    W = S.shape[2]
-    for a in range(W):
-        m[a] = ((S[e, 0, a] <= x1) & (x0 <= S[e, 3, a]) & (S[e, 1, a] <= y1) & (y0 <= S[e, 4, a])
-                & (S[e, 2, a] <= z1) & (z0 <= S[e, 5, a]))
+def _lane_bits(S, e, x0, y0, z0, x1, y1, z1, base):
+    """8-bit mask: bit a set when lane ``base + a`` of leaf record e overlaps the box
+    (x0, y0, z0)–(x1, y1, z1). Branch-free over the 8 lanes (SIMD-vectorised); empty lanes never overlap."""
+    bits = 0
+    for a in range(8):
+        ok = ((S[e, 0, base + a] <= x1) & (x0 <= S[e, 3, base + a]) & (S[e, 1, base + a] <= y1)
+              & (y0 <= S[e, 4, base + a]) & (S[e, 2, base + a] <= z1) & (z0 <= S[e, 5, base + a]))
+        bits |= np.int64(ok) << a
+    return bits
+
+
+@njit(cache=True, inline="always")
+def _pair(i, j, sid, seg64, out_pairs, out_par, n_out, n_prim):
+    """Slots i, j: skip same-fibre neighbours, else the exact capsule test (:func:`_emit`)."""
+    sa, sb = sid[i, 0], sid[j, 0]
+    if sid[i, 1] == sid[j, 1] and abs(sb - sa) <= 1:
+        return out_pairs, out_par, n_out, n_prim
+    n_prim += 1
+    if sa < sb:
+        _, out_pairs, out_par, n_out = _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out)
+    else:
+        _, out_pairs, out_par, n_out = _emit(j, i, sb, sa, seg64, out_pairs, out_par, n_out)
+    return out_pairs, out_par, n_out, n_prim
+
 
 @njit(cache=True, nogil=True)
 def traverse_packed(tasks, nbox, nmeta, S, lfirst, sid, seg64, first_only, counters):
@@ -384,17 +418,18 @@ def traverse_packed(tasks, nbox, nmeta, S, lfirst, sid, seg64, first_only, count
 
     nbox (n, 8) float32 node records: box in columns 0–5; its int32 view ``nmeta``: column 6 = first
     child (inner) or −(leaf record + 1) (leaf), column 7 = segment count. S (L, 6, W) float32 leaf
-    records (:func:`leaf_lanes`): the segment boxes of every leaf as W lanes, structure of arrays;
-    lfirst (L,) the slot of lane 0; sid (S, 2) int32 global segment id and fibre id per slot; seg64
-    (S, 8) float64 endpoints and radius per slot (:func:`refit_packed`).
+    records (:func:`leaf_lanes`, W a multiple of 8): the segment boxes of every leaf as W lanes,
+    structure of arrays; lfirst (L,) the slot of lane 0; sid (S, 2) int32 global segment id and fibre
+    id per slot; seg64 (S, 8) float64 endpoints and radius per slot (:func:`refit_packed`).
 
     A leaf pair tests the lanes of one leaf against the other leaf's box in one vector pass, then every
-    kept segment against all lanes of the other leaf in one pass (a segment of the other leaf that
-    touches it lies in this leaf's box, so filtering the other side would not remove a pair). Measured
-    on the full head (2.4 M segments): 1.5 s against 2.1 s CPU for the scalar per-pair tests on
-    float32 array-of-structure records, same contact set.
+    kept segment against all lanes of the other leaf in one pass per 8 lanes (a segment of the other
+    leaf that touches it lies in this leaf's box, so filtering the other side would not remove a pair);
+    the loops then run over the set bits of the lane masks only. Measured on the full head (2.4 M
+    segments, serial): 1.15 s against 2.1 s CPU for scalar per-pair tests on float32
+    array-of-structure records (1.55 s with vector tests but a branch per lane), same contact set.
     ``first_only``: stop after the first leaf (pair) that gave a contact and return that one contact
-    (no early exit inside the leaf loops: a break there measured 2× slower, it blocks vectorisation).
+    (an exit inside the leaf loops measured 2x slower: it blocks the vectorisation).
     Returns (pairs (n, 2) int64 with pairs[:, 0] < pairs[:, 1], params (n, 2) float64: s, t), unsorted.
     """
     out_pairs = np.empty((1024, 2), np.int64)
@@ -403,8 +438,6 @@ def traverse_packed(tasks, nbox, nmeta, S, lfirst, sid, seg64, first_only, count
     scap = 256
     stack = np.empty((scap, 2), np.int64)
     W = S.shape[2]
-    mu = np.zeros(W, np.bool_)
-    mv = np.zeros(W, np.bool_)
     n_bv = 0
     n_ovl = 0
     n_seg = 0
@@ -438,52 +471,43 @@ def traverse_packed(tasks, nbox, nmeta, S, lfirst, sid, seg64, first_only, count
                         stack[sp, 0], stack[sp, 1] = cu, cu + 1
                         sp += 1
                     continue
+                # all pairs inside one leaf: lane p against the lanes after it
                 e = -cu - 1
                 n = nmeta[u, 7]
                 k0 = lfirst[e]
                 for p in range(n - 1):
-                    _lane_hits(S, e, S[e, 0, p], S[e, 1, p], S[e, 2, p], S[e, 3, p], S[e, 4, p], S[e, 5, p], mv)
                     n_seg += n - 1 - p
-                    i = k0 + p
-                    for q in range(p + 1, n):
-                        if not mv[q]:
-                            continue
-                        j = k0 + q
-                        sa, sb = sid[i, 0], sid[j, 0]
-                        if sid[i, 1] == sid[j, 1] and abs(sb - sa) <= 1:
-                            continue
-                        n_prim += 1
-                        if sa < sb:
-                            hit, out_pairs, out_par, n_out = _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out)
-                        else:
-                            hit, out_pairs, out_par, n_out = _emit(j, i, sb, sa, seg64, out_pairs, out_par, n_out)
+                    for blk in range(8 * ((p + 1) // 8), W, 8):
+                        bits = _lane_bits(S, e, S[e, 0, p], S[e, 1, p], S[e, 2, p], S[e, 3, p], S[e, 4, p],
+                                          S[e, 5, p], blk)
+                        if blk <= p:
+                            bits &= ~((np.int64(2) << (p - blk)) - 1)
+                        for h in range(_LANES[bits, 0]):
+                            out_pairs, out_par, n_out, n_prim = _pair(k0 + p, k0 + blk + _LANES[bits, 1 + h], sid,
+                                                                      seg64, out_pairs, out_par, n_out, n_prim)
                 continue
             cv = nmeta[v, 6]
             if cu < 0 and cv < 0:
+                # leaf pair: the lanes of u inside v's box, each against all lanes of v
                 eu, ev = -cu - 1, -cv - 1
                 nu, nv = nmeta[u, 7], nmeta[v, 7]
-                _lane_hits(S, eu, nbox[v, 0], nbox[v, 1], nbox[v, 2], nbox[v, 3], nbox[v, 4], nbox[v, 5], mu)
-                n_seg += nu
                 ku, kv = lfirst[eu], lfirst[ev]
-                for p in range(nu):
-                    if not mu[p]:
-                        continue
-                    _lane_hits(S, ev, S[eu, 0, p], S[eu, 1, p], S[eu, 2, p], S[eu, 3, p], S[eu, 4, p], S[eu, 5, p], mv)
-                    n_seg += nv
-                    i = ku + p
-                    for q in range(nv):
-                        if not mv[q]:
-                            continue
-                        j = kv + q
-                        sa, sb = sid[i, 0], sid[j, 0]
-                        if sid[i, 1] == sid[j, 1] and abs(sb - sa) <= 1:
-                            continue
-                        n_prim += 1
-                        if sa < sb:
-                            hit, out_pairs, out_par, n_out = _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out)
-                        else:
-                            hit, out_pairs, out_par, n_out = _emit(j, i, sb, sa, seg64, out_pairs, out_par, n_out)
+                n_seg += nu
+                for ub in range(0, W, 8):
+                    ubits = _lane_bits(S, eu, nbox[v, 0], nbox[v, 1], nbox[v, 2], nbox[v, 3], nbox[v, 4],
+                                       nbox[v, 5], ub)
+                    for g in range(_LANES[ubits, 0]):
+                        p = ub + _LANES[ubits, 1 + g]
+                        n_seg += nv
+                        for blk in range(0, W, 8):
+                            bits = _lane_bits(S, ev, S[eu, 0, p], S[eu, 1, p], S[eu, 2, p], S[eu, 3, p],
+                                              S[eu, 4, p], S[eu, 5, p], blk)
+                            for h in range(_LANES[bits, 0]):
+                                out_pairs, out_par, n_out, n_prim = _pair(ku + p, kv + blk + _LANES[bits, 1 + h],
+                                                                          sid, seg64, out_pairs, out_par, n_out,
+                                                                          n_prim)
                 continue
+            # descend the node with more segments (a leaf is never descended)
             n_bv += 2
             if cu < 0 or (cv >= 0 and nmeta[v, 7] > nmeta[u, 7]):
                 if _ovl(nbox, u, nbox, cv + 1):
