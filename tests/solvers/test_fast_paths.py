@@ -88,12 +88,17 @@ def test_assembler_matches_scipy_coo_sum_in_canonical_csr(k):
     assert ElementAssembler(elements, n + 5).assemble(values).getnnz(axis=1)[3 * unused].max() == 0
 
 
-def test_amg_preconditioned_cg_reuses_its_hierarchy_and_solves_to_tolerance():
+def _block_hessian():
+    """(model, free dof ids, rest Hessian on the free dofs as CSR) of a block clamped at its base."""
     mesh = block_tetmesh((0.02, 0.02, 0.01), (8, 8, 4))
     mesh = replace(mesh, fixed=np.isclose(mesh.vertices[:, 2], 0.0))
     m = fem_from_tetmesh(mesh, MAT)
     free = np.flatnonzero(np.repeat(~m.fixed, 3))
-    a = m.hessian(m.rest_positions).tocsr()[free][:, free]
+    return m, free, m.hessian(m.rest_positions).tocsr()[free][:, free]
+
+
+def test_amg_preconditioned_cg_reuses_its_hierarchy_and_solves_to_tolerance():
+    m, free, a = _block_hessian()
     rng = np.random.default_rng(0)
     pre = AmgPreconditioner(rigid_body_modes(m.rest_positions)[free])
     for i in range(3):
@@ -137,11 +142,8 @@ def test_amg_newton_matches_direct_newton_on_a_contact_problem():
 
 
 def test_symmetric_mode_lu_matches_partial_pivoting_on_an_fem_hessian():
-    mesh = block_tetmesh((0.02, 0.02, 0.01), (8, 8, 4))
-    mesh = replace(mesh, fixed=np.isclose(mesh.vertices[:, 2], 0.0))
-    m = fem_from_tetmesh(mesh, MAT)
-    free = np.flatnonzero(np.repeat(~m.fixed, 3))
-    a = m.hessian(m.rest_positions).tocsc()[free][:, free]
+    _, free, a = _block_hessian()
+    a = a.tocsc()
     b = np.random.default_rng(1).standard_normal(len(free))
     ref = spla.spsolve(a, b, permc_spec="MMD_AT_PLUS_A")
     x = solve_direct(a, b)
