@@ -166,3 +166,14 @@ def test_hydrostatic_pressure_settles_independently_of_the_sweep_count(setup, fa
     shift = loaded[200].face_after.vertices[ids] - no_load.face_after.vertices[ids]
     assert surface_distances(no_load.face_after, loaded[200].face_after).hausdorff > 1e-3  # a real load
     assert shift[:, 1].mean() < 0  # it sags along gravity
+
+
+def test_surface_distances_ignore_vertices_outside_every_triangle():
+    """A stray vertex (in no triangle) is not part of the surface: two unit squares 1 mm apart stay 1 mm
+    apart when one of them carries an unused vertex 1 m away."""
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float) * 0.01
+    a = SurfaceMesh(sq, quad)
+    b = SurfaceMesh(np.vstack([sq + [0, 0, 1e-3], [[1.0, 1.0, 1.0]]]), quad)
+    for d in (surface_distances(a, b), surface_distances(b, a)):
+        assert d.hausdorff == pytest.approx(1e-3, rel=1e-9) and d.mean == pytest.approx(1e-3, rel=1e-9)

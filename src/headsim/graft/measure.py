@@ -92,13 +92,15 @@ def surface_distances(a: SurfaceMesh, b: SurfaceMesh, region: FaceRegion | None 
     """Hausdorff and mean surface distance between ``a`` and ``b`` (vertex samples to exact closest points).
 
     With ``region`` (a region of ``a``) only the region's vertices of ``a`` and the vertices of ``b`` whose
-    closest point on ``a`` lies in the region are compared.
+    closest point on ``a`` lies in the region are compared. Only vertices that belong to a triangle are
+    samples: a stray unused vertex is not part of either surface.
     """
     bvh_a = TriangleBVH(a.vertices, a.triangles)
     bvh_b = TriangleBVH(b.vertices, b.triangles)
-    va = a.vertices if region is None else a.vertices[region.vertex_ids]
+    ids_a = np.unique(a.triangles) if region is None else np.intersect1d(region.vertex_ids, a.triangles)
+    va = a.vertices[ids_a]
     d_ab = bvh_b.closest_points(va).distance
-    cp_ba = bvh_a.closest_points(b.vertices)
+    cp_ba = bvh_a.closest_points(b.vertices[np.unique(b.triangles)])
     d_ba = cp_ba.distance
     if region is not None:
         in_region = np.zeros(a.n_triangles, bool)
