@@ -49,6 +49,7 @@ def test_rigid_plate_driven_by_force_compresses_block_uniaxially(direction):
     assert res.contact_forces[:, 2].sum() == pytest.approx(-force, rel=1e-6)
     assert res.driver_forces[0] == pytest.approx(-force, rel=1e-6)  # contact on the plate balances the strap
     assert res.reaction_forces[:, 2].sum() == pytest.approx(force, rel=1e-6)
+    assert 0 < res.gradient_norm <= res.tolerance  # the residual is reported and met
 
 
 def test_two_deformable_blocks_in_contact_share_the_load():

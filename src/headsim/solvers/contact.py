@@ -575,7 +575,9 @@ class QuasiStaticResult:
     vertices; contact_pressure : (n,) Pa; reaction_forces : (n, 3) N that the fixed vertices exert
     on the body; driver_forces : (r,) N contact force on each driven part along its axis;
     newton_iterations : total; contact_updates : outer iterations; timings : CPU s per phase
-    (contact_update = detection and lagged planes; the others as in NewtonResult.timings, summed).
+    (contact_update = detection and lagged planes; the others as in NewtonResult.timings, summed);
+    gradient_norm, tolerance : |g|_inf (N) of the last Newton solve and the tolerance it aimed at
+    (``gradient_norm > tolerance`` only where Newton stopped at round-off, NewtonResult.converged).
     """
 
     positions: np.ndarray
@@ -587,6 +589,8 @@ class QuasiStaticResult:
     newton_iterations: int
     contact_updates: int
     timings: dict = field(default_factory=dict)
+    gradient_norm: float = 0.0
+    tolerance: float = 0.0
 
 
 def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Sequence[RigidDriver] = (), *,
@@ -707,4 +711,5 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
     # reaction at constrained dofs: the support must supply R = dPi/dx there (free dofs have dPi/dx = 0)
     g = gradient(z)[:3 * n].reshape(n, 3)
     reaction = np.where(fixed, g, 0.0)
-    return QuasiStaticResult(x, u, cf, pressure, reaction, -gu_contact, total_it, outer, timings)
+    return QuasiStaticResult(x, u, cf, pressure, reaction, -gu_contact, total_it, outer, timings,
+                             res.gradient_norm, res.tolerance)

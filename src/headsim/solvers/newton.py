@@ -96,6 +96,13 @@ class NewtonResult:
     #                                               linear_solve, line_search; amg_setup and cg within it)
     cg_iterations: int = 0
     amg_setups: int = 0
+    tolerance: float = 0.0  # the |g|_inf the solve aimed at (N); above it only where the energy
+    #                         stagnated at round-off (accepted for |g| <= 1e-6 |g0|) or the step vanished
+
+    @property
+    def converged(self) -> bool:
+        """|g|_inf reached the tolerance (False: stopped at round-off above it)."""
+        return self.gradient_norm <= self.tolerance
 
 
 def rigid_body_modes(positions: np.ndarray) -> np.ndarray:
@@ -426,7 +433,7 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
             t["amg_setup"] = pre.setup_seconds
             t["cg"] = pre.solve_seconds
         return NewtonResult(z, it, gnorm, e, method, t, (pre.iterations - cg0) if pre else 0,
-                            (pre.setups - setups0) if pre else 0)
+                            (pre.setups - setups0) if pre else 0, tol)
 
     for it in range(options.max_iterations):
         if gnorm <= tol:
