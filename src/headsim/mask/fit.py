@@ -118,7 +118,15 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   do not converge (|g| 0.4 N against 0.014 N after 40 Newton iterations); 2 / 4 / 4 leaks up to
   19.4 N, at 20 N a warm start inverts tets and a cold one stalls (|g| 0.21 N), and its cold fit at
   18.75 N stalls too (|g| 0.08 N against 0.019 N); cold 15 N fits: 4.6 s (4 / 4 / original, 14
-  iterations), 5.2 s (4 / 4 / 4, 17), 6.5 s (2 / 4 / 4, 17) wall at load 2.4.
+  iterations), 5.2 s (4 / 4 / 4, 17), 6.5 s (2 / 4 / 4, 17) wall at load 2.4. The stalls are not
+  the finer mesh alone: cold from first contact, 4 / 4 / 4 at 20 N needs 320 Newton iterations
+  (9 contact updates, 115 s, with 150 allowed per update) and the default 4 / 4 / original at
+  30 N ends with inverted tets (min det F = -0.40) although the warm-started search fit there
+  converges; without pitch and yaw (``rotate=False``) 4 / 4 / 4 at 20 N inverts tets (det F
+  -0.85), with a 4x softer penalty (factor 50) it stalls (|g| 0.20 N): the load concentrates on
+  a few skin vertices (peaks 90-140 kPa against E = 30 kPa), where the tissue is crushed. The
+  default nonlinear search (``headsim demo``, 10-30 N) leaks at 10, 20 and 30 N; its leak paths at
+  30 N cross with gaps of 0.45-3.6 mm, far above the facet scale.
 - **Placement**: the mask is placed as in the seed, 2 cm in front of the skin along the approach
   axis (:func:`headsim.mask.place_mask`); the quasi-static solve starts from first contact (the
   mask slid along the axis until its nearest skin-side vertex touches), since the unloaded approach
