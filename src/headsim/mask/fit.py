@@ -84,11 +84,11 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   corner rows 0, r/2, r lie up to 0.40 mm inside the arc) and the face's own facets (Loop- against
   midpoint-subdivided bundled face in the crop: median 0.05 mm, 90th percentile 0.27 mm apart). The
   least seal force of the condensed mode, search tolerance max(0.5 N, 5 %), 1-60 N ("none <= F":
-  leaks up to F, above which the linear model inverts cushion tets):
+  leaks up to F, above which the linear model inverts cushion tets; cushion: spacing along the
+  outline / across the section / rows of the rounded corner, "original" = rows 0, r/2, r):
 
   ===========================  ======================  ====================================
-  cushion: outline / section   skin 2.8 mm (as is)     skin 1.4 mm (midpoint-subdivided)
-  / corner rows
+  cushion outline/section/cor  skin 2.8 mm (as is)     skin 1.4 mm (midpoint-subdivided)
   ===========================  ======================  ====================================
   4 / 4 mm / original (CLI)    none <= 37.5 N          none <= 35 N
   4 / 4 mm / 4 at equal angle  19.4 N                  none <= 23.75 N
@@ -107,10 +107,12 @@ force along the approach axis) as a quasi-static finite-element contact problem:
 
   On the bundled skin every cushion refinement (along the outline, across the section, of the
   corner) lowers the seal force, from none to 6 N, without settling; refining the skin instead
-  (same polyhedral face, finer) removes the seal in 6 of 8 cases. At 20 N with 4 / 4 / 4 the 1.4 mm
+  (same polyhedral face, finer) removes the seal for 5 of the 7 cushions that sealed and nearly
+  doubles the force for the other 2. At 20 N with 4 / 4 / 4 the 1.4 mm
   skin leaks through 4 channels 2.6-3.7 mm wide beside the nasal bridge, with gaps of 43-123 um
   between contact patches of 20-90 kPa on the bundled face's own vertices (its convex kinks), where
-  the 2.8 mm skin had a vertex above the therapy pressure (6-18 kPa) closing each channel. No
+  the 2.8 mm skin, which sealed, had vertices above the therapy pressure (6-28 kPa) within 1-3 mm
+  of each crossing. No
   affordable resolution is converged (the condensed problem at 1.4 mm skin and a 2 mm cushion
   already takes 60-100 s per search), so the CLI default stays the 4 mm cushion with the original
   corner, whose answer (no seal in the linear range) agrees with most of the fine-skin column.
