@@ -187,3 +187,35 @@ def test_membrane_cushion_modulus_follows_section_height():
         make_mask("nasal-M", cushion="foam")
     with pytest.raises(ParameterError):
         MembraneWall(thickness=-1e-3)
+
+
+@pytest.mark.parametrize("segments", [2, 4, 6])
+def test_rounded_corner_rows_lie_on_the_arc_at_equal_angles(segments):
+    """corner_segments = n: the outer vertices of the corner rows lie on the corner's circle (radius
+    r, centred r above the edge and r inside the section's side) at angles k pi / (2 n)."""
+    from headsim.mask.masks import design_of
+
+    design = design_of("nasal")
+    m = make_mask("nasal-M", edge_length=4e-3, corner_segments=segments)
+    n_samples, n_rows, n_cols = m.section_grid
+    v = m.tetmesh.vertices.reshape(n_samples, n_rows, n_cols, 3)
+    r, half_w = design.corner_radius, 0.5 * design.cushion_width
+    rows = v[:, : segments + 1]
+    half = 0.5 * np.linalg.norm(rows[:, :, -1, :2] - rows[:, :, 0, :2], axis=2)     # (samples, rows)
+    height = rows[:, :, 0, 2] - rows[:, :1, 0, 2]
+    np.testing.assert_allclose(np.hypot(half - (half_w - r), r - height), r, rtol=1e-9)
+    angle = np.arctan2(half - (half_w - r), r - height)
+    np.testing.assert_allclose(angle, np.broadcast_to(np.linspace(0, np.pi / 2, segments + 1), angle.shape),
+                               atol=1e-9)
+    assert v[:, segments + 1:, 0, 2].min() > v[:, segments, 0, 2].min()           # rows above the corner
+
+
+def test_section_edge_refines_the_cross_section_only():
+    coarse = make_mask("nasal-M", edge_length=2e-3, section_edge=4e-3)
+    fine = make_mask("nasal-M", edge_length=2e-3)
+    assert coarse.section_grid[0] == fine.section_grid[0]                     # same outline sampling
+    assert coarse.section_grid[2] < fine.section_grid[2] and coarse.section_grid[1] < fine.section_grid[1]
+    with pytest.raises(ParameterError):
+        make_mask("nasal-M", section_edge=0.1e-3)
+    with pytest.raises(ParameterError):
+        make_mask("nasal-M", corner_segments=12)

@@ -69,13 +69,66 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   The lagged contact planes make the equilibrium depend a little on the start: on the coarse test
   problem at 8 N a start from the condensed linear solution gave 5.15 cm^2 of contact against
   5.30 cm^2 from first contact (3 %).
-- **Seal on the bundled face** (measured, issue 6): before contact the nasal-M cushion's axial gap
+- **Seal on the bundled face, analytic saddle** (measured, issue 6, before the cushions were contoured
+  to the mean face, ``make_mask(contour=False)``): before contact the nasal-M cushion's axial gap
   to the skin varies by 3.5 mm around the outline (per 30 deg sector: 0-0.5 mm at the bridge and
   the lip, 2.2-3.5 mm at the four sectors beside the nose); the bridge and lip touch first and carry
   the load (coarse problem, 15 N: 8.8 of 15 N on the two lip sectors, peaks ~100 kPa); the sectors
   beside the alae stay open by 0.1-1 mm and the mask pitches (-2.8 deg at 15 N, -6.7 deg at 30 N);
   it leaks at 30 N. Without pitch (``rotate=False``) it also leaks at 15 N and did not converge
   at 30 N.
+- **Mesh convergence of the seal** (contoured nasal-M on the bundled face; not converged):
+  ``benchmarks/bench_seal_convergence.py``. The contoured edge follows the face to 0.19 mm, so the
+  seal at 10 cmH2O is decided by gaps of 10-150 um along the outline, the size of the meshes'
+  facets: the cushion's chords along the outline and across its rounded corner (the original
+  corner rows 0, r/2, r lie up to 0.40 mm inside the arc) and the face's own facets (Loop- against
+  midpoint-subdivided bundled face in the crop: median 0.05 mm, 90th percentile 0.27 mm apart). The
+  least seal force of the condensed mode, search tolerance max(0.5 N, 5 %), 1-60 N ("none <= F":
+  leaks up to F, above which the linear model inverts cushion tets; cushion: spacing along the
+  outline / across the section / rows of the rounded corner, "original" = rows 0, r/2, r):
+
+  ===========================  ======================  ====================================
+  cushion outline/section/cor  skin 2.8 mm (as is)     skin 1.4 mm (midpoint-subdivided)
+  ===========================  ======================  ====================================
+  4 / 4 mm / original (CLI)    none <= 37.5 N          none <= 35 N
+  4 / 4 mm / 4 at equal angle  19.4 N                  none <= 23.75 N
+  4 / 4 mm / 6                 31.3 N
+  4 / 1.5 mm / original        20.0 N
+  1.5 / 4 mm / original        18.1 N
+  3 / 3 mm / original          21.3 N                  none <= 35 N
+  3 / 3 mm / 4                 11.3 N                  none <= 23.75 N
+  2 / 4 mm / 4                 9.7 N                   none <= 28.75 N
+  2 / 2 mm / original          12.5 N                  21.25 N
+  2 / 2 mm / 4                 7.2 N                   none <= 30 N (Loop-subdivided: <= 28.75)
+  2 / 2 mm / 6                 7.8 N                   13.75 N
+  1.5 / 1.5 mm / original      10.9 N
+  1.5 / 1.5 mm / 4             6.3 N
+  ===========================  ======================  ====================================
+
+  On the bundled skin every cushion refinement (along the outline, across the section, of the
+  corner) lowers the seal force, from none to 6 N, without settling; refining the skin instead
+  (same polyhedral face, finer) removes the seal for 5 of the 7 cushions that sealed and nearly
+  doubles the force for the other 2. At 20 N with 4 / 4 / 4 the 1.4 mm
+  skin leaks through 4 channels 2.6-3.7 mm wide beside the nasal bridge, with gaps of 43-123 um
+  between contact patches of 20-90 kPa on the bundled face's own vertices (its convex kinks), where
+  the 2.8 mm skin, which sealed, had vertices above the therapy pressure (6-28 kPa) within 1-3 mm
+  of each crossing. No
+  resolution in reach is converged (one condensed search: 3 s CPU on the default mesh, 32-41 s at
+  1.4 mm skin with a 2 mm cushion, 125 s with a 1.5 mm cushion on the bundled skin), so the CLI default stays the 4 mm cushion with the original
+  corner, whose answer (no seal in the linear range) agrees with most of the fine-skin column.
+  Nonlinear searches (10-30 N, 2.8 mm skin): 4 / 4 / 4 leaks up to 23.75 N, the fits at 25 and 30 N
+  do not converge (|g| 0.4 N against 0.014 N after 40 Newton iterations); 2 / 4 / 4 leaks up to
+  19.4 N, at 20 N a warm start inverts tets and a cold one stalls (|g| 0.21 N), and its cold fit at
+  18.75 N stalls too (|g| 0.08 N against 0.019 N); cold 15 N fits: 4.6 s (4 / 4 / original, 14
+  iterations), 5.2 s (4 / 4 / 4, 17), 6.5 s (2 / 4 / 4, 17) wall at load 2.4. The stalls are not
+  the finer mesh alone: cold from first contact, 4 / 4 / 4 at 20 N needs 320 Newton iterations
+  (9 contact updates, 115 s, with 150 allowed per update) and the default 4 / 4 / original at
+  30 N ends with inverted tets (min det F = -0.40) although the warm-started search fit there
+  converges; without pitch and yaw (``rotate=False``) 4 / 4 / 4 at 20 N inverts tets (det F
+  -0.85), with a 4x softer penalty (factor 50) it stalls (|g| 0.20 N): the load concentrates on
+  a few skin vertices (peaks 90-140 kPa against E = 30 kPa), where the tissue is crushed. The
+  default nonlinear search (``headsim demo``, 10-30 N) leaks at 10, 20 and 30 N; its leak paths at
+  30 N cross with gaps of 0.45-3.6 mm, far above the facet scale.
 - **Placement**: the mask is placed as in the seed, 2 cm in front of the skin along the approach
   axis (:func:`headsim.mask.place_mask`); the quasi-static solve starts from first contact (the
   mask slid along the axis until its nearest skin-side vertex touches), since the unloaded approach
