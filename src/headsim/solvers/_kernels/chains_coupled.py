@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from headsim.solvers._kernels.chains import _frame, _polygon_qp
+from headsim.solvers._kernels.chains import _frame, _polygon_qp, inv6_into
 
 
 @njit(cache=True, inline="always")
@@ -97,40 +97,6 @@ def _coupling_block(out, scale, im, Iw, rj, ri, C):
 
 
 @njit(cache=True, inline="always")
-def _inv6_into(A, out):
-    """out ← A⁻¹ (6 × 6, Gauss–Jordan with partial pivoting; A is overwritten)."""
-    for a in range(6):
-        for c in range(6):
-            out[a, c] = 1.0 if a == c else 0.0
-    for c in range(6):
-        p = c
-        best = abs(A[c, c])
-        for a in range(c + 1, 6):
-            if abs(A[a, c]) > best:
-                best = abs(A[a, c])
-                p = a
-        if p != c:
-            for z in range(6):
-                t = A[c, z]
-                A[c, z] = A[p, z]
-                A[p, z] = t
-                t = out[c, z]
-                out[c, z] = out[p, z]
-                out[p, z] = t
-        d = 1.0 / A[c, c]
-        for z in range(6):
-            A[c, z] *= d
-            out[c, z] *= d
-        for a in range(6):
-            if a != c:
-                f = A[a, c]
-                if f != 0.0:
-                    for z in range(6):
-                        A[a, z] -= f * A[c, z]
-                        out[a, z] -= f * out[c, z]
-
-
-@njit(cache=True, inline="always")
 def _chain_factor(j0, j1, joint_k, joint_l, joint_rk, joint_rl, C, mass, Ik, Il, Dinv, G, Up):
     """Block-tridiagonal (Thomas) factorisation of the joint system of one chain (rows j0:j1, consecutive
     joints along one fibre): Dinv[j] = (D_j − G_j Up_{j−1})⁻¹, G[j] = Lo_j Dinv[j−1], Up[j] = ∂e_j/∂q_{j+1}."""
@@ -166,7 +132,7 @@ def _chain_factor(j0, j1, joint_k, joint_l, joint_rk, joint_rl, C, mass, Ik, Il,
                     for z in range(6):
                         s += G[j, a, z] * Up[j - 1, z, c]
                     D[a, c] -= s
-        _inv6_into(D, Dinv[j])
+        inv6_into(D, Dinv[j])
 
 
 @njit(cache=True, inline="always")
