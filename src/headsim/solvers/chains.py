@@ -26,10 +26,14 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    replace v_N by the partner's current normal velocity (a block-Jacobi pass over the bodies).
    **Default** ``contact_coupling="coupled"``: the same per-contact normal rows and friction polygons
    solved by one projected (nonlinear) Gauss–Seidel over all contacts with relative velocities and
-   equal and opposite impulses (Moreau–Jean NSCD), with every joint of a touched fibre as one exact 6×6
-   block in the same sweeps: the point-joint row and the joint's implicit bending/torsion spring over the
+   equal and opposite impulses (Moreau–Jean NSCD), with the joints of every touched fibre in the same
+   sweeps: per joint the point-joint row and the joint's implicit bending/torsion spring over the
    second half step (extra angular impulse Λ = (½Δt² K_w + Δt c)(ω_rel − ω_rel⁻), the same linearly
-   implicit spring as the joint stage). Without the spring rows the contact stage sees a floppy
+   implicit spring as the joint stage), all joints of one fibre solved together exactly in each sweep
+   (block-tridiagonal, :mod:`headsim.solvers._kernels.chains_coupled`; fibres in parallel), then the
+   contacts one by one; between full sweeps, partial sweeps visit only the contacts that carry an
+   impulse or are near their bound (same fixed point), and the solve starts from half of the previous
+   step's impulses of the same contacts (``warm_start``). Without the spring rows the contact stage sees a floppy
    ball-joint chain: an off-centre contact impulse bends it freely (≈ 10 rad/s per step on a stacked
    5-segment fibre), the next joint stage's stiff springs push back, and stacked multi-segment layers
    gained energy a hundredfold and sank through each other within 300 steps (measured; test
