@@ -284,11 +284,11 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
     the largest joint gap-rate residual fall below ``tol``. Returns the sweeps used and that last change, m/s."""
     nc = body.shape[0]
     m = mu_cos.shape[0]
-    MA = np.zeros((nc, 3, 6))
-    MB = np.zeros((nc, 3, 6))
-    JA = np.zeros((nc, 3, 6))
-    JB = np.zeros((nc, 3, 6))
-    W = np.zeros((nc, 3, 3))
+    MA = np.empty((nc, 3, 6))  # every entry is written by _contact_rows
+    MB = np.empty((nc, 3, 6))
+    JA = np.empty((nc, 3, 6))
+    JB = np.empty((nc, 3, 6))
+    W = np.empty((nc, 3, 3))
     for c in prange(nc):
         Iw = np.empty((3, 3))
         _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W, Iw)
