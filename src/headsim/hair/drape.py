@@ -93,36 +93,21 @@ class DrapeResult:
     seconds: dict = field(default_factory=dict)  # summed per-phase wall time, s
 
 
-def _ringlet(n_fibres, n_segments, length, radius, pitch_height, top_point, vertical=True, spacing=105e-6):
-    """A helical strand (ringlet) of ``n_fibres`` parallel fibres, (n_fibres, n_segments + 1, 3) nodes, m.
+def _helix(n_nodes, length, radius, pitch_height, phase, axis_point, vertical=True):
+    """A helix polyline of arc length ``length`` (m) around a vertical (y) or horizontal (x) axis."""
+    turns_len = np.hypot(2 * np.pi * radius, pitch_height)
+    s = np.linspace(0, length, n_nodes)
+    ang = phase + 2 * np.pi * s / turns_len
+    h = pitch_height * s / turns_len
+    if vertical:
+        return np.stack([axis_point[0] + radius * np.cos(ang), axis_point[1] - h, axis_point[2] + radius * np.sin(ang)], 1)
+    return np.stack([axis_point[0] + h, axis_point[1] + radius * np.cos(ang), axis_point[2] + radius * np.sin(ang)], 1)
 
-    The strand's centreline is a helix of ``radius`` and ``pitch_height`` per turn around a vertical (−y)
-    or horizontal (+x) axis through ``top_point``, arc length ``length``. The fibres sit on a hexagonal
-    lattice of ``spacing`` (default 1.5 fibre diameters) in the centreline's normal plane (radial
-    direction e_r and binormal B) and are sampled at the same centreline arc lengths, so neighbouring
-    fibres start one lattice spacing apart along their whole length (the chord of a 3 mm segment on a
-    12 mm helix cuts the arc by 94 µm, more than a diameter: fibres sampled at different phases would
-    start interpenetrating). Fibre lengths differ from ``length`` by the radial offset (±κ·offset,
-    a few per cent)."""
-    k = int(np.ceil(np.sqrt(n_fibres))) + 2
-    ii, jj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1), indexing="ij")
-    lat = np.stack([ii + 0.5 * jj, jj * np.sqrt(3) / 2], -1).reshape(-1, 2) * spacing
-    lat = lat[np.argsort(np.hypot(lat[:, 0], lat[:, 1]), kind="stable")[:n_fibres]]
-    turn = np.hypot(2 * np.pi * radius, pitch_height)
-    s = np.linspace(0.0, length, n_segments + 1)
-    ang = 2 * np.pi * s / turn
-    h = pitch_height * s / turn
-    # local helix coordinates (axis = −z'): centreline c, radial e_r, tangent t, binormal b = t × e_r
-    c = np.stack([radius * np.cos(ang), radius * np.sin(ang), -h], 1)
-    er = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)
-    t = np.stack([-2 * np.pi * radius * np.sin(ang), 2 * np.pi * radius * np.cos(ang), -np.full_like(ang, pitch_height)], 1)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    b = np.cross(t, er)
-    local = c[None] + lat[:, None, 0:1] * er[None] + lat[:, None, 1:2] * b[None]
-    x0, y0, z0 = top_point
-    if vertical:  # axis along −y: local (x', y', z') → world (x', z', y')
-        return np.stack([x0 + local[..., 0], y0 + local[..., 2], z0 + local[..., 1]], -1)
-    return np.stack([x0 - local[..., 2], y0 + local[..., 0], z0 + local[..., 1]], -1)
+
+def _disc(n, radius, rng):
+    r = radius * np.sqrt(rng.uniform(size=n))
+    t = rng.uniform(0, 2 * np.pi, n)
+    return np.stack([r * np.cos(t), r * np.sin(t)], 1)
 
 
 def _terrain_field(spacing=2e-3):
@@ -146,6 +131,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         raise ParameterError(f"unknown drape scene {name!r}; choose one of {', '.join(SCENES)}")
     if not (dt > 0 and length > 0):
         raise ParameterError("dt and length must be > 0")
+    rng = np.random.default_rng(seed)
     r = 0.5 * FIBRE_DIAMETER
     law = friction_law(friction_mode)
     mesh = None
@@ -165,30 +151,31 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         dur = 0.6 if duration is None else duration
     elif name in ("sphere-helical", "terrain"):
         F, n = n_fibres or 355, segments or 100
+        roots = _disc(F, 0.004, rng)
         top = 0.12 if name == "sphere-helical" else 0.0
-        polys = list(_ringlet(F, n, length, 0.012, 0.008, (0.0, top, 0.0)))
+        polys = [_helix(n + 1, length, 0.012, 0.008, rng.uniform(0, 2 * np.pi), (rx, top, rz))
+                 for rx, rz in roots]
         if name == "sphere-helical":
             R = 0.05
             obstacles = [Obstacle(SphereField((0.015, -R, 0.0), R), name="sphere")]
-            desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, a vertical helical strand (centreline helix "
-                    f"radius 1.2 cm, pitch 8 mm, fibres on a 105 µm hexagonal lattice across it, rest shape "
-                    f"straight), roots at y = {top * 100:g} cm, "
+            desc = (f"{F} vertical helical fibres × {n} segments, {length * 100:g} cm, roots on a 4 mm disc "
+                    f"at y = {top * 100:g} cm (helix radius 1.2 cm, pitch 8 mm, rest shape straight), "
                     f"sphere R = {R * 100:g} cm with its top at y = 0, offset 1.5 cm; friction {friction_mode}")
         else:
             fld, mesh = _terrain_field()
             obstacles = [Obstacle(fld, name="terrain")]
-            desc = (f"{F} fibres × {n} segments, a vertical helical strand (as sphere-helical), roots at y = 0, "
-                    f"onto a bumpy terrain (cosine "
+            desc = (f"{F} vertical helical fibres × {n} segments, roots at y = 0, onto a bumpy terrain (cosine "
                     f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field 2 mm); friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     elif name == "plane":
         F, n = n_fibres or 250, segments or 100
         alpha = np.deg2rad(22.5)
-        polys = list(_ringlet(F, n, length, 0.012, 0.01, (-0.05, 0.05, 0.0), vertical=False))
+        yz = _disc(F, 0.004, rng)
+        polys = [_helix(n + 1, length, 0.012, 0.01, rng.uniform(0, 2 * np.pi), (-0.05, 0.05 + a, b), vertical=False)
+                 for a, b in yz]
         nrm = (np.sin(alpha), np.cos(alpha), 0.0)
         obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), nrm), name="plane 22.5°")]
-        desc = (f"{F} fibres × {n} segments, a horizontal helical strand (centreline helix radius 1.2 cm, pitch "
-                f"1 cm, fibres on a 105 µm lattice), roots fixed, above a 22.5° plane; "
+        desc = (f"{F} horizontal helical fibres × {n} segments, roots fixed, above a 22.5° plane; "
                 f"friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     else:  # head
