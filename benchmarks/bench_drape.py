@@ -23,6 +23,8 @@ import numpy as np
 
 
 def _time(solver, scene, state, steps):
+    if steps <= 0:
+        return state, 0.0, 0.0, {}, 0.0
     w0, c0 = time.perf_counter(), time.process_time()
     phases = {}
     contacts = []

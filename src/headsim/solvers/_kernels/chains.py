@@ -122,11 +122,6 @@ def half_step(x, R, v, w, inertia, h, x_out, R_out, w_out):
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
-def _solve6(A, b):
-    return np.linalg.solve(A, b)
-
-
 @njit(cache=True, inline="always")
 def _joint_impulses_on_body(b, s, n, j0, P, R, half):
     """Net linear impulse fl (3,) and angular impulse tq (3,) of the joint impulses P (nj, 6) on body b
@@ -149,91 +144,242 @@ def _joint_impulses_on_body(b, s, n, j0, P, R, half):
     return fl, tq
 
 
+@njit(cache=True, inline="always")
+def _joint_impulses_into(b, s, n, j0, P, R, half, fl, tq):
+    """Allocation-free :func:`_joint_impulses_on_body`: writes fl (3,), tq (3,)."""
+    for c in range(3):
+        fl[c] = 0.0
+        tq[c] = 0.0
+    if b >= j0:
+        jj = b - j0
+        h = -half[s]
+        r0, r1, r2 = h * R[s, 0, 2], h * R[s, 1, 2], h * R[s, 2, 2]
+        p0, p1, p2 = P[jj, 0], P[jj, 1], P[jj, 2]
+        fl[0] -= p0
+        fl[1] -= p1
+        fl[2] -= p2
+        tq[0] -= P[jj, 3] + r1 * p2 - r2 * p1
+        tq[1] -= P[jj, 4] + r2 * p0 - r0 * p2
+        tq[2] -= P[jj, 5] + r0 * p1 - r1 * p0
+    if b + 1 < n:
+        jj = b + 1 - j0
+        h = half[s]
+        r0, r1, r2 = h * R[s, 0, 2], h * R[s, 1, 2], h * R[s, 2, 2]
+        p0, p1, p2 = P[jj, 0], P[jj, 1], P[jj, 2]
+        fl[0] += p0
+        fl[1] += p1
+        fl[2] += p2
+        tq[0] += P[jj, 3] + r1 * p2 - r2 * p1
+        tq[1] += P[jj, 4] + r2 * p0 - r0 * p2
+        tq[2] += P[jj, 5] + r0 * p1 - r1 * p0
+
+
+@njit(cache=True, inline="always")
+def _exp_times_into(p0, p1, p2, Rs, E, out):
+    """out (3, 3) ← exp(φ̃) Rs (Rodrigues as :func:`rodrigues`); E (3, 3) is a work matrix."""
+    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    if th < 1e-12:
+        a, b2 = 1.0, 0.5
+        k0, k1, k2 = p0, p1, p2
+    else:
+        a, b2 = np.sin(th), 1.0 - np.cos(th)
+        k0, k1, k2 = p0 / th, p1 / th, p2 / th
+    # E = I + a k̃ + b2 k̃², k̃² = k kᵀ − |k|² I
+    kk = k0 * k0 + k1 * k1 + k2 * k2
+    E[0, 0] = 1.0 + b2 * (k0 * k0 - kk)
+    E[1, 1] = 1.0 + b2 * (k1 * k1 - kk)
+    E[2, 2] = 1.0 + b2 * (k2 * k2 - kk)
+    E[0, 1] = -a * k2 + b2 * k0 * k1
+    E[1, 0] = a * k2 + b2 * k0 * k1
+    E[0, 2] = a * k1 + b2 * k0 * k2
+    E[2, 0] = -a * k1 + b2 * k0 * k2
+    E[1, 2] = -a * k0 + b2 * k1 * k2
+    E[2, 1] = a * k0 + b2 * k1 * k2
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = E[r, 0] * Rs[0, c] + E[r, 1] * Rs[1, c] + E[r, 2] * Rs[2, c]
+
+
 @njit(cache=True)
 def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root_frame, f,
                  dt, gravity, dx_extra, dth_extra, K, rest, damping, res, x_end, R_end, w_new):
     """Trial integration over Δt (eqs. 8.78/8.80) with impulses P (nj, 6); fills the residual
     res (nj, 6): rows 0:3 joint gap d (eq. 8.76), rows 3:6 implicit spring L* − Δt[K_w(θ − θ°) + c ω_rel].
-    Returns the largest gap norm, m."""
+    Returns the largest gap norm, m. Scalar loops (no temporary arrays per segment)."""
     nj = n - j0
+    fl = np.empty(3)
+    tq = np.empty(3)
+    E = np.empty((3, 3))
+    Q = np.empty((3, 3))
     for b in range(n):
         s = s0 + b
-        fl, tq = _joint_impulses_on_body(b, s, n, j0, P, R, half)
-        Iwi = world_inverse_inertia(R[s], inertia[s])
-        wn = w[s] + Iwi @ tq
+        _joint_impulses_into(b, s, n, j0, P, R, half, fl, tq)
+        # ω_new = ω + I_w⁻¹ τ, I_w⁻¹ = R diag(1/I) Rᵀ
+        for a in range(3):
+            t = 0.0
+            for c in range(3):
+                t += R[s, c, a] * tq[c]
+            E[0, a] = t / inertia[s, a]
+        for a in range(3):
+            w_new[b, a] = w[s, a] + R[s, a, 0] * E[0, 0] + R[s, a, 1] * E[0, 1] + R[s, a, 2] * E[0, 2]
         for c in range(3):
             x_end[b, c] = x[s, c] + dt * (v[s, c] + fl[c] / mass[s]) + 0.5 * dt * dt * gravity[c] + dx_extra[s, c]
-            w_new[b, c] = wn[c]
-        R_end[b] = rodrigues(dt * wn + dth_extra[s]) @ R[s]
+        _exp_times_into(dt * w_new[b, 0] + dth_extra[s, 0], dt * w_new[b, 1] + dth_extra[s, 1],
+                        dt * w_new[b, 2] + dth_extra[s, 2], R[s], E, R_end[b])
     gmax = 0.0
     for jj in range(nj):
         b = jj + j0
         s = s0 + b
-        pl = x_end[b] - half[s] * R_end[b, :, 2]
+        hl = half[s]
         if b == 0:
-            pk = root_point[f]
             Rk = root_frame[f]
-            wk = np.zeros(3)
+            d0 = root_point[f, 0] - (x_end[b, 0] - hl * R_end[b, 0, 2])
+            d1 = root_point[f, 1] - (x_end[b, 1] - hl * R_end[b, 1, 2])
+            d2 = root_point[f, 2] - (x_end[b, 2] - hl * R_end[b, 2, 2])
+            wk0, wk1, wk2 = 0.0, 0.0, 0.0
         else:
-            pk = x_end[b - 1] + half[s - 1] * R_end[b - 1, :, 2]
             Rk = R_end[b - 1]
-            wk = w_new[b - 1]
-        d = pk - pl
-        th = log_so3(Rk.T @ R_end[b])
-        mom = Rk @ (K[s] * (th - rest[s])) + damping[s] * (w_new[b] - wk)
-        for c in range(3):
-            res[jj, c] = d[c]
-            res[jj, 3 + c] = P[jj, 3 + c] - dt * mom[c]
-        g = np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+            hk = half[s - 1]
+            d0 = x_end[b - 1, 0] + hk * Rk[0, 2] - (x_end[b, 0] - hl * R_end[b, 0, 2])
+            d1 = x_end[b - 1, 1] + hk * Rk[1, 2] - (x_end[b, 1] - hl * R_end[b, 1, 2])
+            d2 = x_end[b - 1, 2] + hk * Rk[2, 2] - (x_end[b, 2] - hl * R_end[b, 2, 2])
+            wk0, wk1, wk2 = w_new[b - 1, 0], w_new[b - 1, 1], w_new[b - 1, 2]
+        for r in range(3):
+            for c in range(3):
+                Q[r, c] = Rk[0, r] * R_end[b, 0, c] + Rk[1, r] * R_end[b, 1, c] + Rk[2, r] * R_end[b, 2, c]
+        th = log_so3(Q)
+        e0 = K[s, 0] * (th[0] - rest[s, 0])
+        e1 = K[s, 1] * (th[1] - rest[s, 1])
+        e2 = K[s, 2] * (th[2] - rest[s, 2])
+        c_d = damping[s]
+        m0 = Rk[0, 0] * e0 + Rk[0, 1] * e1 + Rk[0, 2] * e2 + c_d * (w_new[b, 0] - wk0)
+        m1 = Rk[1, 0] * e0 + Rk[1, 1] * e1 + Rk[1, 2] * e2 + c_d * (w_new[b, 1] - wk1)
+        m2 = Rk[2, 0] * e0 + Rk[2, 1] * e1 + Rk[2, 2] * e2 + c_d * (w_new[b, 2] - wk2)
+        res[jj, 0] = d0
+        res[jj, 1] = d1
+        res[jj, 2] = d2
+        res[jj, 3] = P[jj, 3] - dt * m0
+        res[jj, 4] = P[jj, 4] - dt * m1
+        res[jj, 5] = P[jj, 5] - dt * m2
+        g = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if g > gmax:
             gmax = g
     return gmax
 
 
-@njit(cache=True)
-def _wrench_map(r, sign):
-    """6×6 map (p, L*) → wrench (f, τ) on a body with lever r: sign·[[E, 0], [r̃, E]] (eq. 8.72)."""
-    B = np.zeros((6, 6))
-    rt = skew(r)
+@njit(cache=True, inline="always")
+def _wrench_map(r, sign, B):
+    """B (6, 6) ← map (p, L*) → wrench (f, τ) on a body with lever r: sign·[[E, 0], [r̃, E]] (eq. 8.72)."""
+    for a in range(6):
+        for c in range(6):
+            B[a, c] = 0.0
     for a in range(3):
         B[a, a] = sign
         B[3 + a, 3 + a] = sign
-        for c in range(3):
-            B[3 + a, c] = sign * rt[a, c]
-    return B
+    B[3, 1] = -sign * r[2]
+    B[3, 2] = sign * r[1]
+    B[4, 0] = sign * r[2]
+    B[4, 2] = -sign * r[0]
+    B[5, 0] = -sign * r[1]
+    B[5, 1] = sign * r[0]
 
 
-@njit(cache=True)
-def _rate_map(r, sign):
-    """6×6 map twist (v, ω) of a body → (gap rate, relative angular rate): k: [[E, −r̃], [0, −E]],
+@njit(cache=True, inline="always")
+def _rate_map(r, sign, C):
+    """C (6, 6) ← map twist (v, ω) of a body → (gap rate, relative angular rate): k: [[E, −r̃], [0, −E]],
     l: [[−E, r̃], [0, E]] (sign = +1 for k, −1 for l)."""
-    C = np.zeros((6, 6))
-    rt = skew(r)
+    for a in range(6):
+        for c in range(6):
+            C[a, c] = 0.0
     for a in range(3):
         C[a, a] = sign
         C[3 + a, 3 + a] = -sign
-        for c in range(3):
-            C[a, 3 + c] = -sign * rt[a, c]
-    return C
+    C[0, 4] = sign * r[2]
+    C[0, 5] = -sign * r[1]
+    C[1, 3] = -sign * r[2]
+    C[1, 5] = sign * r[0]
+    C[2, 3] = sign * r[1]
+    C[2, 4] = -sign * r[0]
 
 
-@njit(cache=True)
-def _mobility(s, R, mass, inertia):
-    W = np.zeros((6, 6))
-    Iwi = world_inverse_inertia(R[s], inertia[s])
+@njit(cache=True, inline="always")
+def _rate_times_mobility(s, r, sign, R, mass, inertia, out):
+    """out (6, 6) ← C(r, sign) W_s (rate map times the body's mobility diag(E/m, I_w⁻¹))."""
+    C = np.empty((6, 6))
+    _rate_map(r, sign, C)
+    Iwi = np.empty((3, 3))
     for a in range(3):
-        W[a, a] = 1.0 / mass[s]
+        for b in range(3):
+            t = 0.0
+            for c in range(3):
+                t += R[s, a, c] * R[s, b, c] / inertia[s, c]
+            Iwi[a, b] = t
+    im = 1.0 / mass[s]
+    for a in range(6):
         for c in range(3):
-            W[3 + a, 3 + c] = Iwi[a, c]
-    return W
+            out[a, c] = C[a, c] * im
+            t = 0.0
+            for z in range(3):
+                t += C[a, 3 + z] * Iwi[z, c]
+            out[a, 3 + c] = t
+
+
+@njit(cache=True, inline="always")
+def _mm6_add(A, B, out, scale):
+    """out (6, 6) += scale · A B."""
+    for a in range(6):
+        for c in range(6):
+            t = 0.0
+            for z in range(6):
+                t += A[a, z] * B[z, c]
+            out[a, c] += scale * t
+
+
+@njit(cache=True, inline="always")
+def inv6_into(A, out):
+    """out ← A⁻¹ (6 × 6, Gauss–Jordan with partial pivoting; A is overwritten)."""
+    for a in range(6):
+        for c in range(6):
+            out[a, c] = 1.0 if a == c else 0.0
+    for c in range(6):
+        p = c
+        best = abs(A[c, c])
+        for a in range(c + 1, 6):
+            if abs(A[a, c]) > best:
+                best = abs(A[a, c])
+                p = a
+        if p != c:
+            for z in range(6):
+                t = A[c, z]
+                A[c, z] = A[p, z]
+                A[p, z] = t
+                t = out[c, z]
+                out[c, z] = out[p, z]
+                out[p, z] = t
+        d = 1.0 / A[c, c]
+        for z in range(6):
+            A[c, z] *= d
+            out[c, z] *= d
+        for a in range(6):
+            if a != c:
+                f = A[a, c]
+                if f != 0.0:
+                    for z in range(6):
+                        A[a, z] -= f * A[c, z]
+                        out[a, z] -= f * out[c, z]
 
 
 @njit(cache=True)
 def _fibre_jacobian(s0, n, j0, R, mass, inertia, half, dt, K, damping, Dg, Lo, Up):
     """First-order (chord) Jacobian of the trial residual w.r.t. the joint impulses, block-tridiagonal:
     Dg[j] = ∂res_j/∂P_j, Lo[j] = ∂res_j/∂P_{j−1}, Up[j] = ∂res_j/∂P_{j+1} (the linearised K-matrix
-    coupling of Mirtich / Bender, used as the Newton matrix of Method I)."""
+    coupling of Mirtich / Bender, used as the Newton matrix of Method I). Allocation-free 6 × 6 loops."""
     nj = n - j0
+    CWl = np.empty((6, 6))
+    CWk = np.empty((6, 6))
+    B = np.empty((6, 6))
+    T = np.empty((6, 6))
+    rv = np.empty(3)
     for jj in range(nj):
         for a in range(6):
             for c in range(6):
@@ -244,64 +390,87 @@ def _fibre_jacobian(s0, n, j0, R, mass, inertia, half, dt, K, damping, Dg, Lo, U
         b = jj + j0
         s = s0 + b
         # bodies of joint jj: l = b (always), k = b - 1 (if b > 0)
-        rl = -half[s] * R[s, :, 2]
-        Wl = _mobility(s, R, mass, inertia)
-        Cl = _rate_map(rl, -1.0)
-        Bl = _wrench_map(rl, -1.0)
-        blk = Cl @ Wl @ Bl
+        for c in range(3):
+            rv[c] = -half[s] * R[s, c, 2]
+        _rate_times_mobility(s, rv, -1.0, R, mass, inertia, CWl)
+        _wrench_map(rv, -1.0, B)
+        _mm6_add(CWl, B, Dg[jj], 1.0)
         if b > 0:
             sk = s - 1
-            rk = half[sk] * R[sk, :, 2]
-            Wk = _mobility(sk, R, mass, inertia)
-            Ck = _rate_map(rk, 1.0)
-            blk += Ck @ Wk @ _wrench_map(rk, 1.0)
+            for c in range(3):
+                rv[c] = half[sk] * R[sk, c, 2]
+            _rate_times_mobility(sk, rv, 1.0, R, mass, inertia, CWk)
+            _wrench_map(rv, 1.0, B)
+            _mm6_add(CWk, B, Dg[jj], 1.0)
             if jj > 0:  # joint jj-1 acts on body k as its "l"
-                rkl = -half[sk] * R[sk, :, 2]
-                Lo[jj] += Ck @ Wk @ _wrench_map(rkl, -1.0)
+                for c in range(3):
+                    rv[c] = -half[sk] * R[sk, c, 2]
+                _wrench_map(rv, -1.0, B)
+                _mm6_add(CWk, B, Lo[jj], 1.0)
         if b + 1 < n:  # joint jj+1 acts on body l as its "k"
-            rlk = half[s] * R[s, :, 2]
-            Up[jj] += Cl @ Wl @ _wrench_map(rlk, 1.0)
-        Dg[jj] += blk
-        Kw = np.zeros((3, 3))
+            for c in range(3):
+                rv[c] = half[s] * R[s, c, 2]
+            _wrench_map(rv, 1.0, B)
+            _mm6_add(CWl, B, Up[jj], 1.0)
+        # row scaling diag(Δt E, −(Δt² K_w + Δt c E)) of the gap and spring rows, then + E on the spring rows
         Rk = R[s - 1] if b > 0 else R[s]
+        for a in range(6):
+            for c in range(6):
+                T[a, c] = 0.0
         for a in range(3):
+            T[a, a] = dt
             for c in range(3):
-                Kw[a, c] = Rk[a, 0] * K[s, 0] * Rk[c, 0] + Rk[a, 1] * K[s, 1] * Rk[c, 1] + Rk[a, 2] * K[s, 2] * Rk[c, 2]
-        scale = np.zeros((6, 6))
-        for a in range(3):
-            scale[a, a] = dt
-        for a in range(3):
-            for c in range(3):
-                scale[3 + a, 3 + c] = -(dt * dt * Kw[a, c] + (dt * damping[s] if a == c else 0.0))
-        Dg[jj] = scale @ Dg[jj]
-        Lo[jj] = scale @ Lo[jj]
-        Up[jj] = scale @ Up[jj]
+                kw = Rk[a, 0] * K[s, 0] * Rk[c, 0] + Rk[a, 1] * K[s, 1] * Rk[c, 1] + Rk[a, 2] * K[s, 2] * Rk[c, 2]
+                T[3 + a, 3 + c] = -(dt * dt * kw + (dt * damping[s] if a == c else 0.0))
+        for M in (Dg, Lo, Up):
+            for a in range(6):
+                for c in range(6):
+                    B[a, c] = M[jj, a, c]
+                    M[jj, a, c] = 0.0
+            _mm6_add(T, B, M[jj], 1.0)
         for a in range(3):
             Dg[jj, 3 + a, 3 + a] += 1.0
 
 
 @njit(cache=True)
 def _block_thomas_factor(nj, Dg, Lo, Up, Dinv, G):
+    D = np.empty((6, 6))
     for jj in range(nj):
-        D = Dg[jj].copy()
+        for a in range(6):
+            for c in range(6):
+                D[a, c] = Dg[jj, a, c]
         if jj > 0:
-            G[jj] = Lo[jj] @ Dinv[jj - 1]
-            D -= G[jj] @ Up[jj - 1]
-        Dinv[jj] = np.linalg.inv(D)
+            for a in range(6):
+                for c in range(6):
+                    G[jj, a, c] = 0.0
+            _mm6_add(Lo[jj], Dinv[jj - 1], G[jj], 1.0)
+            _mm6_add(G[jj], Up[jj - 1], D, -1.0)
+        inv6_into(D, Dinv[jj])
 
 
 @njit(cache=True)
 def _block_thomas_solve(nj, Up, Dinv, G, rhs, out):
-    y = np.zeros((nj, 6))
+    y = np.empty((nj, 6))
     for jj in range(nj):
-        y[jj] = rhs[jj]
-        if jj > 0:
-            y[jj] -= G[jj] @ y[jj - 1]
+        for a in range(6):
+            t = rhs[jj, a]
+            if jj > 0:
+                for z in range(6):
+                    t -= G[jj, a, z] * y[jj - 1, z]
+            y[jj, a] = t
+    t6 = np.empty(6)
     for jj in range(nj - 1, -1, -1):
-        t = y[jj].copy()
-        if jj < nj - 1:
-            t -= Up[jj] @ out[jj + 1]
-        out[jj] = Dinv[jj] @ t
+        for a in range(6):
+            t = y[jj, a]
+            if jj < nj - 1:
+                for z in range(6):
+                    t -= Up[jj, a, z] * out[jj + 1, z]
+            t6[a] = t
+        for a in range(6):
+            t = 0.0
+            for z in range(6):
+                t += Dinv[jj, a, z] * t6[z]
+            out[jj, a] = t
 
 
 @njit(cache=True)
@@ -601,7 +770,7 @@ def project_bodies_batch(bodies, row_off, u_minus, mass, R, inertia, normal, lev
 
 
 # --------------------------------------------------------------------------------------------------
-# coupled contact projection: nonlinear Gauss–Seidel over all contacts (Moreau–Jean NSCD)
+# friction frame (shared with the coupled contact projection, chains_coupled.py)
 # --------------------------------------------------------------------------------------------------
 
 
@@ -615,222 +784,6 @@ def _frame(axis, n):
         l1 = np.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
     t1 = t1 / l1
     return t1, _cross(n, t1)
-
-
-@njit(cache=True)
-def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
-                    restitution, max_iter, tol, lam_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
-                    joint_compliance_inv, joint_w0):
-    """Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
-    ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
-    λ_c·conv{μ_β d_β} per contact (frame t₁ from body A's axis) and the same exact 2-D block solves as
-    :func:`project_body`. u (S, 6) holds u⁻ on entry and the result on exit (restitution added to the
-    normal part). partner = −1: static obstacle.
-
-    Joint rows (joint_k, joint_l bodies, −1 = fixed root anchor; levers joint_rk, joint_rl (nj, 3), m;
-    joint_target (nj, 3) m/s) are bilateral point-joint constraints (u_k + ω_k × r_k) − (u_l + ω_l × r_l)
-    = target, solved in the same sweeps with their exact 3×3 K-matrix blocks (Mirtich 1996), so the
-    contact impulses and the joints agree at the velocity level (the velocity-level counterpart of the
-    seed's harmonisation).
-
-    Spring rows (joint_compliance_inv (nj, 3, 3): C = ½Δt² K_w + Δt c E, the implicit bending/torsion
-    spring of §8.5.3 seen over the second half step; joint_w0 (nj, 3) rad/s: relative angular velocity
-    ω_l − ω_k on entry): the joint's extra angular impulse pair (+Λ on k, −Λ on l) obeys
-    Λ = C (ω_rel(u) − ω_rel,0), i.e. the contact stage sees the same linearly implicit springs as the
-    joint stage. Without these rows the contact stage treats the chain as a floppy ball-joint chain:
-    an off-centre contact impulse bends it freely, and the springs of the next joint stage then push
-    back from a state they never agreed to, which pumps energy into stacked multi-segment fibres.
-    Returns the sweeps used."""
-    nc = body.shape[0]
-    m = mu_cos.shape[0]
-    MA = np.zeros((nc, 3, 6))
-    MB = np.zeros((nc, 3, 6))
-    JA = np.zeros((nc, 3, 6))
-    JB = np.zeros((nc, 3, 6))
-    W = np.zeros((nc, 3, 3))
-    for c in range(nc):
-        a = body[c]
-        n = normal[c]
-        t1, t2 = _frame(R[a, :, 2].copy(), n)
-        IA = world_inverse_inertia(R[a], inertia[a])
-        for k in range(3):
-            d = n if k == 0 else (t1 if k == 1 else t2)
-            rd = _cross(lever[c], d)
-            for q in range(3):
-                JA[c, k, q] = d[q]
-                JA[c, k, 3 + q] = rd[q]
-                MA[c, k, q] = d[q] / mass[a]
-            MA[c, k, 3:] = IA @ rd
-        b = partner[c]
-        if b >= 0:
-            IB = world_inverse_inertia(R[b], inertia[b])
-            for k in range(3):
-                d = n if k == 0 else (t1 if k == 1 else t2)
-                rd = _cross(partner_lever[c], d)
-                for q in range(3):
-                    JB[c, k, q] = d[q]
-                    JB[c, k, 3 + q] = rd[q]
-                    MB[c, k, q] = d[q] / mass[b]
-                MB[c, k, 3:] = IB @ rd
-        for k in range(3):
-            for q in range(3):
-                s = 0.0
-                for z in range(6):
-                    s += JA[c, k, z] * MA[c, q, z] + JB[c, k, z] * MB[c, q, z]
-                W[c, k, q] = s
-    nj = joint_k.shape[0]
-    # joint blocks: point row and implicit spring row of a joint solved together, δ(p, Λ) = −W6 e with the
-    # exact 6×6 block  [[K_pp, K_pa], [K_ap, K_aa]]  (body k: Δv = p/m, Δω = I⁻¹(r̃_k p + Λ); body l: minus that
-    # with its own lever): K_pp = Σ(E/m − r̃ I⁻¹ r̃), K_pa = −Σ r̃ I⁻¹, K_ap = −C Σ I⁻¹ r̃, K_aa = −C Σ I⁻¹ − E
-    Ik = np.zeros((nj, 3, 3))
-    Il = np.zeros((nj, 3, 3))
-    W6 = np.zeros((nj, 6, 6))
-    for j in range(nj):
-        M6 = np.zeros((6, 6))
-        Cq = joint_compliance_inv[j]
-        for side in range(2):
-            b = joint_k[j] if side == 0 else joint_l[j]
-            if b < 0:
-                continue
-            r = joint_rk[j] if side == 0 else joint_rl[j]
-            rt = skew(r)
-            Iw = world_inverse_inertia(R[b], inertia[b])
-            if side == 0:
-                Ik[j] = Iw
-            else:
-                Il[j] = Iw
-            M6[:3, :3] += np.eye(3) / mass[b] - rt @ Iw @ rt
-            M6[:3, 3:] -= rt @ Iw
-            M6[3:, :3] -= Cq @ Iw @ rt
-            M6[3:, 3:] -= Cq @ Iw
-        for z in range(3):
-            M6[3 + z, 3 + z] -= 1.0
-        W6[j] = np.linalg.inv(M6)
-    Lam = np.zeros((nj, 3))
-    e6 = np.zeros(6)
-    dq6 = np.zeros(6)
-    tk = np.zeros(3)
-    lam = np.zeros(nc)
-    fr = np.zeros((nc, 2))
-    dun = np.zeros(u.shape)
-    px = np.zeros(max(m, 1))
-    py = np.zeros(max(m, 1))
-    Bl = np.zeros((2, 2))
-    cl = np.zeros(2)
-    vr = np.zeros(3)
-    it = 0
-    while it < max_iter:
-        it += 1
-        change = 0.0
-        for jq in range(2 * nj):
-            j = jq if jq < nj else 2 * nj - 1 - jq  # forward and backward along the chains
-            k = joint_k[j]
-            l = joint_l[j]
-            rl = joint_rl[j]
-            v0 = -joint_target[j, 0] - u[l, 0] - (u[l, 4] * rl[2] - u[l, 5] * rl[1])
-            v1 = -joint_target[j, 1] - u[l, 1] - (u[l, 5] * rl[0] - u[l, 3] * rl[2])
-            v2 = -joint_target[j, 2] - u[l, 2] - (u[l, 3] * rl[1] - u[l, 4] * rl[0])
-            if k >= 0:
-                rk = joint_rk[j]
-                v0 += u[k, 0] + (u[k, 4] * rk[2] - u[k, 5] * rk[1])
-                v1 += u[k, 1] + (u[k, 5] * rk[0] - u[k, 3] * rk[2])
-                v2 += u[k, 2] + (u[k, 3] * rk[1] - u[k, 4] * rk[0])
-            # spring row residual: C (ω_l − ω_k − ω_rel,0) − Λ
-            Cq = joint_compliance_inv[j]
-            for z in range(3):
-                e6[z] = v0
-                e6[3 + z] = u[l, 3 + z] - (u[k, 3 + z] if k >= 0 else 0.0) - joint_w0[j, z]
-            e6[1] = v1
-            e6[2] = v2
-            wa0, wa1, wa2 = e6[3], e6[4], e6[5]
-            for z in range(3):
-                e6[3 + z] = Cq[z, 0] * wa0 + Cq[z, 1] * wa1 + Cq[z, 2] * wa2 - Lam[j, z]
-            # allocation-free: δ = −W6 e, then the impulse pair (p, Λ) on k (+) and l (−)
-            for z in range(6):
-                sacc = 0.0
-                for q in range(6):
-                    sacc += W6[j, z, q] * e6[q]
-                dq6[z] = -sacc
-            for z in range(3):
-                Lam[j, z] += dq6[3 + z]
-            if k >= 0:
-                rk = joint_rk[j]
-                tk[0] = rk[1] * dq6[2] - rk[2] * dq6[1] + dq6[3]
-                tk[1] = rk[2] * dq6[0] - rk[0] * dq6[2] + dq6[4]
-                tk[2] = rk[0] * dq6[1] - rk[1] * dq6[0] + dq6[5]
-                im = 1.0 / mass[k]
-                for z in range(3):
-                    u[k, z] += dq6[z] * im
-                    u[k, 3 + z] += Ik[j, z, 0] * tk[0] + Ik[j, z, 1] * tk[1] + Ik[j, z, 2] * tk[2]
-            tk[0] = rl[1] * dq6[2] - rl[2] * dq6[1] + dq6[3]
-            tk[1] = rl[2] * dq6[0] - rl[0] * dq6[2] + dq6[4]
-            tk[2] = rl[0] * dq6[1] - rl[1] * dq6[0] + dq6[5]
-            im = 1.0 / mass[l]
-            for z in range(3):
-                u[l, z] -= dq6[z] * im
-                u[l, 3 + z] -= Il[j, z, 0] * tk[0] + Il[j, z, 1] * tk[1] + Il[j, z, 2] * tk[2]
-            d = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-            if d > change:
-                change = d
-        for q in range(nc):
-            c = q if it % 2 == 1 else nc - 1 - q  # symmetric Gauss–Seidel
-            a = body[c]
-            b = partner[c]
-            for k in range(3):
-                s = 0.0
-                for z in range(6):
-                    s += JA[c, k, z] * u[a, z]
-                    if b >= 0:
-                        s -= JB[c, k, z] * u[b, z]
-                vr[k] = s
-            new = lam[c] + (target[c] - vr[0]) / W[c, 0, 0]
-            if new < 0.0:
-                new = 0.0
-            dl = new - lam[c]
-            if dl != 0.0:
-                for z in range(6):
-                    u[a, z] += MA[c, 0, z] * dl
-                    dun[a, z] += MA[c, 0, z] * dl
-                    if b >= 0:
-                        u[b, z] -= MB[c, 0, z] * dl
-                        dun[b, z] -= MB[c, 0, z] * dl
-                for k in range(3):
-                    vr[k] += W[c, k, 0] * dl
-                change = max(change, abs(dl) * W[c, 0, 0])
-            lam[c] = new
-            if m < 3:
-                continue
-            Bl[0, 0] = W[c, 1, 1]
-            Bl[0, 1] = W[c, 1, 2]
-            Bl[1, 0] = W[c, 2, 1]
-            Bl[1, 1] = W[c, 2, 2]
-            cl[0] = vr[1] - Bl[0, 0] * fr[c, 0] - Bl[0, 1] * fr[c, 1]
-            cl[1] = vr[2] - Bl[1, 0] * fr[c, 0] - Bl[1, 1] * fr[c, 1]
-            if lam[c] > 0.0:
-                for z in range(m):
-                    px[z] = lam[c] * mu_cos[z]
-                    py[z] = lam[c] * mu_sin[z]
-                nx, ny = _polygon_qp(Bl, cl, px, py, m)
-            else:
-                nx, ny = 0.0, 0.0
-            dx, dy = nx - fr[c, 0], ny - fr[c, 1]
-            if dx != 0.0 or dy != 0.0:
-                for z in range(6):
-                    u[a, z] += MA[c, 1, z] * dx + MA[c, 2, z] * dy
-                    if b >= 0:
-                        u[b, z] -= MB[c, 1, z] * dx + MB[c, 2, z] * dy
-                change = max(change, np.sqrt(dx * dx * Bl[0, 0] + dy * dy * Bl[1, 1]))
-            fr[c, 0] = nx
-            fr[c, 1] = ny
-        if change <= tol:
-            break
-    if restitution > 0.0:
-        for s in range(u.shape[0]):
-            for z in range(6):
-                u[s, z] += restitution * dun[s, z]
-    for c in range(nc):
-        lam_out[c] = lam[c]
-    return it
 
 
 @njit(cache=True)

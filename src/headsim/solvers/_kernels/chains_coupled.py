@@ -1,0 +1,459 @@
+"""Numba kernels of the coupled contact stage of the chain solver (Sobottka 2008 ch. 8; Moreau–Jean NSCD).
+
+One projected nonlinear Gauss–Seidel over all contacts in which every touched fibre's joints (point
+row + implicit bending/torsion spring row, 6 unknowns each) form **one block per fibre**, solved
+exactly by a block-tridiagonal (Thomas) factorisation made once per call: a sweep solves every
+fibre's whole joint system for the current velocities (fibres in parallel — their joint rows share
+no body), then visits the contacts one by one. A point-by-point sweep over the joints (the previous
+form) needs O(n²) sweeps to carry a contact impulse along a chain of n segments; the fibre block
+carries it in one.
+
+Conventions as in :mod:`headsim.solvers._kernels.chains`: twists u = (v, ω) (m/s, rad/s, world
+frame); joint j couples body k (−1: fixed root anchor) with lever r_k and body l with lever r_l; its
+impulse (p, Λ) (N s, N m s) acts as +(p, r_k × p + Λ) on k and −(p, r_l × p + Λ) on l.
+
+Both drivers are compiled from the same Python function: :func:`project_coupled` (serial) and
+:func:`project_coupled_parallel` (``prange`` over fibres and contacts in the set-up, over fibres in
+the sweeps).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from headsim.solvers._kernels.chains import _frame, _polygon_qp, inv6_into
+
+
+@njit(cache=True, inline="always")
+def _inv_inertia_into(R, inertia, out):
+    """out (3, 3) ← R diag(1/I) Rᵀ (world inverse inertia, 1/(kg m²))."""
+    for a in range(3):
+        for b in range(3):
+            s = 0.0
+            for c in range(3):
+                s += R[a, c] * R[b, c] / inertia[c]
+            out[a, b] = s
+
+
+@njit(cache=True, inline="always")
+def _coupling_block(out, scale, im, Iw, rj, ri, C):
+    """out (6, 6) += scale · [[E/m − r̃_j I⁻¹ r̃_i, −r̃_j I⁻¹], [−C I⁻¹ r̃_i, −C I⁻¹]]: the change of joint j's
+    residual (gap-rate row with lever r_j, spring row with compliance C) per unit impulse (p, Λ) of a joint
+    with lever r_i on a shared body of inverse mass im and world inverse inertia Iw."""
+    # X = I⁻¹ r̃_i (3×3), Y = r̃_j I⁻¹ (3×3)
+    X = np.empty((3, 3))
+    Y = np.empty((3, 3))
+    for a in range(3):
+        # I⁻¹ r̃_i: column c of r̃_i is e_c × ... use r̃_i[b, c]
+        for c in range(3):
+            s = 0.0
+            t = 0.0
+            for b in range(3):
+                # r̃_i[b, c]
+                if b == c:
+                    ric = 0.0
+                elif b == 0:
+                    ric = -ri[2] if c == 1 else ri[1]
+                elif b == 1:
+                    ric = ri[2] if c == 0 else -ri[0]
+                else:
+                    ric = -ri[1] if c == 0 else ri[0]
+                s += Iw[a, b] * ric
+                # r̃_j[a, b]
+                if a == b:
+                    rja = 0.0
+                elif a == 0:
+                    rja = -rj[2] if b == 1 else rj[1]
+                elif a == 1:
+                    rja = rj[2] if b == 0 else -rj[0]
+                else:
+                    rja = -rj[1] if b == 0 else rj[0]
+                t += rja * Iw[b, c]
+            X[a, c] = s
+            Y[a, c] = t
+    for a in range(3):
+        for c in range(3):
+            # r̃_j X = r̃_j I⁻¹ r̃_i = Y r̃_i
+            s = 0.0
+            cx = 0.0
+            cy = 0.0
+            for b in range(3):
+                if b == c:
+                    ric = 0.0
+                elif b == 0:
+                    ric = -ri[2] if c == 1 else ri[1]
+                elif b == 1:
+                    ric = ri[2] if c == 0 else -ri[0]
+                else:
+                    ric = -ri[1] if c == 0 else ri[0]
+                s += Y[a, b] * ric
+                cx += C[a, b] * X[b, c]
+                cy += C[a, b] * Iw[b, c]
+            out[a, c] += scale * ((im if a == c else 0.0) - s)
+            out[a, 3 + c] -= scale * Y[a, c]
+            out[3 + a, c] -= scale * cx
+            out[3 + a, 3 + c] -= scale * cy
+
+
+@njit(cache=True, inline="always")
+def _chain_factor(j0, j1, joint_k, joint_l, joint_rk, joint_rl, C, mass, Ik, Il, Dinv, G, Up):
+    """Block-tridiagonal (Thomas) factorisation of the joint system of one chain (rows j0:j1, consecutive
+    joints along one fibre): Dinv[j] = (D_j − G_j Up_{j−1})⁻¹, G[j] = Lo_j Dinv[j−1], Up[j] = ∂e_j/∂q_{j+1}."""
+    D = np.empty((6, 6))
+    Lo = np.empty((6, 6))
+    for j in range(j0, j1):
+        for a in range(6):
+            for c in range(6):
+                D[a, c] = 0.0
+                Lo[a, c] = 0.0
+                Up[j, a, c] = 0.0
+        k = joint_k[j]
+        l = joint_l[j]
+        if k >= 0:
+            _coupling_block(D, 1.0, 1.0 / mass[k], Ik[j], joint_rk[j], joint_rk[j], C[j])
+        _coupling_block(D, 1.0, 1.0 / mass[l], Il[j], joint_rl[j], joint_rl[j], C[j])
+        for a in range(3):
+            D[3 + a, 3 + a] -= 1.0
+        if j > j0:  # body k of joint j is body l of joint j − 1
+            _coupling_block(Lo, -1.0, 1.0 / mass[k], Ik[j], joint_rk[j], joint_rl[j - 1], C[j])
+        if j + 1 < j1:  # body l of joint j is body k of joint j + 1
+            _coupling_block(Up[j], -1.0, 1.0 / mass[l], Il[j], joint_rl[j], joint_rk[j + 1], C[j])
+        if j > j0:
+            for a in range(6):
+                for c in range(6):
+                    s = 0.0
+                    for z in range(6):
+                        s += Lo[a, z] * Dinv[j - 1, z, c]
+                    G[j, a, c] = s
+            for a in range(6):
+                for c in range(6):
+                    s = 0.0
+                    for z in range(6):
+                        s += G[j, a, z] * Up[j - 1, z, c]
+                    D[a, c] -= s
+        inv6_into(D, Dinv[j])
+
+
+@njit(cache=True, inline="always")
+def _chain_sweep(j0, j1, joint_k, joint_l, joint_rk, joint_rl, joint_target, C, joint_w0, u, mass, Ik, Il,
+                 Dinv, G, Up, Lam, y, dq):
+    """Solve the whole joint system of one chain exactly for the current twists u and apply the impulse
+    change; y, dq (rows, 6) are work rows. Returns the largest joint gap-rate residual before the solve, m/s."""
+    worst = 0.0
+    for j in range(j0, j1):
+        k = joint_k[j]
+        l = joint_l[j]
+        rl = joint_rl[j]
+        v0 = joint_target[j, 0] + u[l, 0] + (u[l, 4] * rl[2] - u[l, 5] * rl[1])
+        v1 = joint_target[j, 1] + u[l, 1] + (u[l, 5] * rl[0] - u[l, 3] * rl[2])
+        v2 = joint_target[j, 2] + u[l, 2] + (u[l, 3] * rl[1] - u[l, 4] * rl[0])
+        w0 = u[l, 3] - joint_w0[j, 0]
+        w1 = u[l, 4] - joint_w0[j, 1]
+        w2 = u[l, 5] - joint_w0[j, 2]
+        if k >= 0:
+            rk = joint_rk[j]
+            v0 -= u[k, 0] + (u[k, 4] * rk[2] - u[k, 5] * rk[1])
+            v1 -= u[k, 1] + (u[k, 5] * rk[0] - u[k, 3] * rk[2])
+            v2 -= u[k, 2] + (u[k, 3] * rk[1] - u[k, 4] * rk[0])
+            w0 -= u[k, 3]
+            w1 -= u[k, 4]
+            w2 -= u[k, 5]
+        # rhs = −e: e = (gap rate − target, C ω_rel − Λ)
+        y[j, 0] = v0
+        y[j, 1] = v1
+        y[j, 2] = v2
+        for z in range(3):
+            y[j, 3 + z] = Lam[j, z] - (C[j, z, 0] * w0 + C[j, z, 1] * w1 + C[j, z, 2] * w2)
+        d = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        if d > worst:
+            worst = d
+        if j > j0:
+            for a in range(6):
+                s = 0.0
+                for z in range(6):
+                    s += G[j, a, z] * y[j - 1, z]
+                dq[j, a] = s
+            for a in range(6):
+                y[j, a] -= dq[j, a]
+    for j in range(j1 - 1, j0 - 1, -1):
+        for a in range(6):
+            t = y[j, a]
+            if j + 1 < j1:
+                for z in range(6):
+                    t -= Up[j, a, z] * dq[j + 1, z]
+            y[j, a] = t
+        for a in range(6):
+            s = 0.0
+            for z in range(6):
+                s += Dinv[j, a, z] * y[j, z]
+            dq[j, a] = s
+    for j in range(j0, j1):
+        k = joint_k[j]
+        l = joint_l[j]
+        for z in range(3):
+            Lam[j, z] += dq[j, 3 + z]
+        if k >= 0:
+            rk = joint_rk[j]
+            t0 = rk[1] * dq[j, 2] - rk[2] * dq[j, 1] + dq[j, 3]
+            t1 = rk[2] * dq[j, 0] - rk[0] * dq[j, 2] + dq[j, 4]
+            t2 = rk[0] * dq[j, 1] - rk[1] * dq[j, 0] + dq[j, 5]
+            im = 1.0 / mass[k]
+            for z in range(3):
+                u[k, z] += dq[j, z] * im
+                u[k, 3 + z] += Ik[j, z, 0] * t0 + Ik[j, z, 1] * t1 + Ik[j, z, 2] * t2
+        rl = joint_rl[j]
+        t0 = rl[1] * dq[j, 2] - rl[2] * dq[j, 1] + dq[j, 3]
+        t1 = rl[2] * dq[j, 0] - rl[0] * dq[j, 2] + dq[j, 4]
+        t2 = rl[0] * dq[j, 1] - rl[1] * dq[j, 0] + dq[j, 5]
+        im = 1.0 / mass[l]
+        for z in range(3):
+            u[l, z] -= dq[j, z] * im
+            u[l, 3 + z] -= Il[j, z, 0] * t0 + Il[j, z, 1] * t1 + Il[j, z, 2] * t2
+    return worst
+
+
+@njit(cache=True, inline="always")
+def _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W, Iw):
+    """Jacobian rows (n, t₁, t₂) of contact c on both bodies, their mobility images M⁻¹Jᵀ and the 3×3
+    Delassus block W = J_A M_A⁻¹ J_Aᵀ + J_B M_B⁻¹ J_Bᵀ (t₁ from body A's axis)."""
+    a = body[c]
+    n = normal[c]
+    t1, t2 = _frame(R[a, :, 2].copy(), n)
+    for side in range(2):
+        b = a if side == 0 else partner[c]
+        lev = lever[c] if side == 0 else partner_lever[c]
+        Jr = JA if side == 0 else JB
+        Mr = MA if side == 0 else MB
+        if b < 0:
+            for k in range(3):
+                for z in range(6):
+                    Jr[c, k, z] = 0.0
+                    Mr[c, k, z] = 0.0
+            continue
+        _inv_inertia_into(R[b], inertia[b], Iw)
+        for k in range(3):
+            d0 = n[0] if k == 0 else (t1[0] if k == 1 else t2[0])
+            d1 = n[1] if k == 0 else (t1[1] if k == 1 else t2[1])
+            d2 = n[2] if k == 0 else (t1[2] if k == 1 else t2[2])
+            r0 = lev[1] * d2 - lev[2] * d1
+            r1 = lev[2] * d0 - lev[0] * d2
+            r2 = lev[0] * d1 - lev[1] * d0
+            Jr[c, k, 0] = d0
+            Jr[c, k, 1] = d1
+            Jr[c, k, 2] = d2
+            Jr[c, k, 3] = r0
+            Jr[c, k, 4] = r1
+            Jr[c, k, 5] = r2
+            im = 1.0 / mass[b]
+            Mr[c, k, 0] = d0 * im
+            Mr[c, k, 1] = d1 * im
+            Mr[c, k, 2] = d2 * im
+            for z in range(3):
+                Mr[c, k, 3 + z] = Iw[z, 0] * r0 + Iw[z, 1] * r1 + Iw[z, 2] * r2
+    for k in range(3):
+        for q in range(3):
+            s = 0.0
+            for z in range(6):
+                s += JA[c, k, z] * MA[c, q, z] + JB[c, k, z] * MB[c, q, z]
+            W[c, k, q] = s
+
+
+def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
+                          restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl,
+                          joint_target, joint_compliance_inv, joint_w0, chain_off):
+    """Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
+    ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
+    λ_c·conv{μ_β d_β} per contact (frame t₁ from body A's axis) solved by exact 2-D block solves
+    (:func:`headsim.solvers._kernels.chains._polygon_qp`). u (S, 6) holds u⁻ on entry and the result on
+    exit (restitution ε added to the normal part). partner = −1: static obstacle.
+
+    lam_out (nc,), fr_out (nc, 2): on entry the initial normal and friction impulses (warm start, N s,
+    friction in the contact's (t₁, t₂) frame; zeros: cold start), applied here to u = u⁻ before the first
+    sweep; on exit the solution.
+
+    Joint rows (joint_k, joint_l bodies, −1 = fixed root anchor; levers joint_rk, joint_rl (nj, 3), m;
+    joint_target (nj, 3) m/s; grouped in chains ``chain_off`` (CSR over the rows, consecutive joints of
+    one fibre)) are bilateral point-joint constraints (u_k + ω_k × r_k) − (u_l + ω_l × r_l) = target,
+    each with its implicit spring row (joint_compliance_inv (nj, 3, 3): C = ½Δt² K_w + Δt c E over the
+    second half step; joint_w0 (nj, 3) rad/s: relative angular velocity ω_l − ω_k of u⁻): the extra
+    angular impulse pair (+Λ on k, −Λ on l) obeys Λ = C (ω_rel(u) − ω_rel,0). Every sweep solves each
+    chain's 6·n_j rows exactly (block Thomas, factorised once here), then the contacts (symmetric
+    order; partial sweeps over the rows that carry an impulse or are close to their bound in between, see
+    the schedule below). Stops when, in a full sweep, the largest impulse change (as a velocity, m/s) and
+    the largest joint gap-rate residual fall below ``tol``. Returns the sweeps used and that last change, m/s."""
+    nc = body.shape[0]
+    m = mu_cos.shape[0]
+    MA = np.empty((nc, 3, 6))  # every entry is written by _contact_rows
+    MB = np.empty((nc, 3, 6))
+    JA = np.empty((nc, 3, 6))
+    JB = np.empty((nc, 3, 6))
+    W = np.empty((nc, 3, 3))
+    for c in prange(nc):
+        Iw = np.empty((3, 3))
+        _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W, Iw)
+    nj = joint_k.shape[0]
+    nch = chain_off.shape[0] - 1
+    Ik = np.zeros((nj, 3, 3))
+    Il = np.zeros((nj, 3, 3))
+    Dinv = np.zeros((nj, 6, 6))
+    G = np.zeros((nj, 6, 6))
+    Up = np.zeros((nj, 6, 6))
+    for j in prange(nj):
+        if joint_k[j] >= 0:
+            _inv_inertia_into(R[joint_k[j]], inertia[joint_k[j]], Ik[j])
+        _inv_inertia_into(R[joint_l[j]], inertia[joint_l[j]], Il[j])
+    for ch in prange(nch):
+        _chain_factor(chain_off[ch], chain_off[ch + 1], joint_k, joint_l, joint_rk, joint_rl, joint_compliance_inv,
+                      mass, Ik, Il, Dinv, G, Up)
+    Lam = np.zeros((nj, 3))
+    y = np.zeros((nj, 6))
+    dq = np.zeros((nj, 6))
+    chain_worst = np.zeros(nch)
+    lam = lam_out.copy()
+    fr = fr_out.copy()
+    dun = np.zeros(u.shape)
+    if m < 3:
+        for c in range(nc):
+            fr[c, 0] = 0.0
+            fr[c, 1] = 0.0
+    # warm start: apply the initial impulses (the first joint sweep then re-closes the joints)
+    for c in range(nc):
+        if lam[c] < 0.0:
+            lam[c] = 0.0
+        if lam[c] == 0.0:
+            fr[c, 0] = 0.0
+            fr[c, 1] = 0.0
+        if lam[c] == 0.0:
+            continue
+        a = body[c]
+        b = partner[c]
+        for z in range(6):
+            du = MA[c, 0, z] * lam[c]
+            u[a, z] += du + MA[c, 1, z] * fr[c, 0] + MA[c, 2, z] * fr[c, 1]
+            dun[a, z] += du
+            if b >= 0:
+                du = MB[c, 0, z] * lam[c]
+                u[b, z] -= du + MB[c, 1, z] * fr[c, 0] + MB[c, 2, z] * fr[c, 1]
+                dun[b, z] -= du
+    px = np.zeros(max(m, 1))
+    py = np.zeros(max(m, 1))
+    Bl = np.zeros((2, 2))
+    cl = np.zeros(2)
+    vr = np.zeros(3)
+    # sweep schedule: a full sweep visits every row; the partial sweeps in between visit only the rows
+    # that carry an impulse or were within ``slack_band`` of their bound in the last full sweep (a row
+    # with λ = 0 whose bound holds is left unchanged by a Gauss–Seidel visit, so skipping it changes
+    # nothing until another row's impulse makes it bind). The iteration only stops on a full sweep with
+    # a change ≤ tol, and the last permitted sweep is full: the fixed point is the plain Gauss–Seidel one.
+    listed = np.arange(nc)
+    n_listed = nc
+    full = True
+    since_full = 0
+    last_full_change = np.inf
+    it = 0
+    change = 0.0
+    while it < max_iter:
+        it += 1
+        if it == max_iter:
+            full = True
+        change = 0.0
+        for ch in prange(nch):
+            chain_worst[ch] = _chain_sweep(chain_off[ch], chain_off[ch + 1], joint_k, joint_l, joint_rk, joint_rl,
+                                           joint_target, joint_compliance_inv, joint_w0, u, mass, Ik, Il, Dinv, G,
+                                           Up, Lam, y, dq)
+        for ch in range(nch):
+            if chain_worst[ch] > change:
+                change = chain_worst[ch]
+        n_rows = nc if full else n_listed
+        slack_band = max(10.0 * tol, last_full_change)
+        n_new = 0
+        for q in range(n_rows):
+            qq = q if it % 2 == 1 else n_rows - 1 - q  # symmetric Gauss–Seidel
+            c = qq if full else listed[qq]
+            a = body[c]
+            b = partner[c]
+            s = 0.0
+            for z in range(6):
+                s += JA[c, 0, z] * u[a, z]
+                if b >= 0:
+                    s -= JB[c, 0, z] * u[b, z]
+            vr[0] = s
+            new = lam[c] + (target[c] - s) / W[c, 0, 0]
+            if new < 0.0:
+                new = 0.0
+            if new == 0.0 and lam[c] == 0.0 and fr[c, 0] == 0.0 and fr[c, 1] == 0.0:
+                if full and s - target[c] <= slack_band:
+                    listed[n_new] = c
+                    n_new += 1
+                continue  # bound holds, no impulse: the visit changes nothing
+            if full:
+                listed[n_new] = c
+                n_new += 1
+            for k in range(1, 3):
+                s = 0.0
+                for z in range(6):
+                    s += JA[c, k, z] * u[a, z]
+                    if b >= 0:
+                        s -= JB[c, k, z] * u[b, z]
+                vr[k] = s
+            dl = new - lam[c]
+            if dl != 0.0:
+                for z in range(6):
+                    u[a, z] += MA[c, 0, z] * dl
+                    dun[a, z] += MA[c, 0, z] * dl
+                    if b >= 0:
+                        u[b, z] -= MB[c, 0, z] * dl
+                        dun[b, z] -= MB[c, 0, z] * dl
+                for k in range(3):
+                    vr[k] += W[c, k, 0] * dl
+                change = max(change, abs(dl) * W[c, 0, 0])
+            lam[c] = new
+            if m < 3:
+                continue
+            Bl[0, 0] = W[c, 1, 1]
+            Bl[0, 1] = W[c, 1, 2]
+            Bl[1, 0] = W[c, 2, 1]
+            Bl[1, 1] = W[c, 2, 2]
+            cl[0] = vr[1] - Bl[0, 0] * fr[c, 0] - Bl[0, 1] * fr[c, 1]
+            cl[1] = vr[2] - Bl[1, 0] * fr[c, 0] - Bl[1, 1] * fr[c, 1]
+            if lam[c] > 0.0:
+                for z in range(m):
+                    px[z] = lam[c] * mu_cos[z]
+                    py[z] = lam[c] * mu_sin[z]
+                nx, ny = _polygon_qp(Bl, cl, px, py, m)
+            else:
+                nx, ny = 0.0, 0.0
+            dx, dy = nx - fr[c, 0], ny - fr[c, 1]
+            if dx != 0.0 or dy != 0.0:
+                for z in range(6):
+                    u[a, z] += MA[c, 1, z] * dx + MA[c, 2, z] * dy
+                    if b >= 0:
+                        u[b, z] -= MB[c, 1, z] * dx + MB[c, 2, z] * dy
+                change = max(change, np.sqrt(dx * dx * Bl[0, 0] + dy * dy * Bl[1, 1]))
+            fr[c, 0] = nx
+            fr[c, 1] = ny
+        if full:
+            n_listed = n_new
+            last_full_change = change
+            if change <= tol:
+                break
+            full = False
+            since_full = 0
+        else:
+            since_full += 1
+            # back to a full sweep when the listed rows have settled, or every 8 partial sweeps
+            full = change <= tol or since_full >= 8
+    if restitution > 0.0:
+        for s in range(u.shape[0]):
+            for z in range(6):
+                u[s, z] += restitution * dun[s, z]
+    for c in range(nc):
+        lam_out[c] = lam[c]
+        fr_out[c, 0] = fr[c, 0]
+        fr_out[c, 1] = fr[c, 1]
+    return it, change
+
+
+project_coupled = njit(cache=True)(_project_coupled_impl)
+project_coupled_parallel = njit(cache=True, parallel=True)(_project_coupled_impl)
