@@ -75,16 +75,22 @@ def log_so3(R):
     return ax * th
 
 
-@njit(cache=True)
-def world_inverse_inertia(R, inertia):
-    """I_w⁻¹ = R diag(1/I) Rᵀ (1/(kg m²))."""
-    out = np.zeros((3, 3))
+@njit(cache=True, inline="always")
+def _inv_inertia_into(R, inertia, out):
+    """out (3, 3) ← R diag(1/I) Rᵀ (world inverse inertia, 1/(kg m²))."""
     for a in range(3):
         for b in range(3):
             s = 0.0
             for c in range(3):
                 s += R[a, c] * R[b, c] / inertia[c]
             out[a, b] = s
+
+
+@njit(cache=True)
+def world_inverse_inertia(R, inertia):
+    """I_w⁻¹ = R diag(1/I) Rᵀ (1/(kg m²))."""
+    out = np.zeros((3, 3))
+    _inv_inertia_into(R, inertia, out)
     return out
 
 

@@ -22,18 +22,19 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from headsim.solvers._kernels.chains import _frame, _polygon_qp, inv6_into
+from headsim.solvers._kernels.chains import _frame, _inv_inertia_into, _polygon_qp, inv6_into
 
 
 @njit(cache=True, inline="always")
-def _inv_inertia_into(R, inertia, out):
-    """out (3, 3) ← R diag(1/I) Rᵀ (world inverse inertia, 1/(kg m²))."""
-    for a in range(3):
-        for b in range(3):
-            s = 0.0
-            for c in range(3):
-                s += R[a, c] * R[b, c] / inertia[c]
-            out[a, b] = s
+def _skew(r, b, c):
+    """Element (b, c) of the cross-product matrix r̃ (r̃ x = r × x)."""
+    if b == c:
+        return 0.0
+    if b == 0:
+        return -r[2] if c == 1 else r[1]
+    if b == 1:
+        return r[2] if c == 0 else -r[0]
+    return -r[1] if c == 0 else r[0]
 
 
 @njit(cache=True, inline="always")
@@ -45,31 +46,12 @@ def _coupling_block(out, scale, im, Iw, rj, ri, C):
     X = np.empty((3, 3))
     Y = np.empty((3, 3))
     for a in range(3):
-        # I⁻¹ r̃_i: column c of r̃_i is e_c × ... use r̃_i[b, c]
         for c in range(3):
             s = 0.0
             t = 0.0
             for b in range(3):
-                # r̃_i[b, c]
-                if b == c:
-                    ric = 0.0
-                elif b == 0:
-                    ric = -ri[2] if c == 1 else ri[1]
-                elif b == 1:
-                    ric = ri[2] if c == 0 else -ri[0]
-                else:
-                    ric = -ri[1] if c == 0 else ri[0]
-                s += Iw[a, b] * ric
-                # r̃_j[a, b]
-                if a == b:
-                    rja = 0.0
-                elif a == 0:
-                    rja = -rj[2] if b == 1 else rj[1]
-                elif a == 1:
-                    rja = rj[2] if b == 0 else -rj[0]
-                else:
-                    rja = -rj[1] if b == 0 else rj[0]
-                t += rja * Iw[b, c]
+                s += Iw[a, b] * _skew(ri, b, c)
+                t += _skew(rj, a, b) * Iw[b, c]
             X[a, c] = s
             Y[a, c] = t
     for a in range(3):
@@ -79,15 +61,7 @@ def _coupling_block(out, scale, im, Iw, rj, ri, C):
             cx = 0.0
             cy = 0.0
             for b in range(3):
-                if b == c:
-                    ric = 0.0
-                elif b == 0:
-                    ric = -ri[2] if c == 1 else ri[1]
-                elif b == 1:
-                    ric = ri[2] if c == 0 else -ri[0]
-                else:
-                    ric = -ri[1] if c == 0 else ri[0]
-                s += Y[a, b] * ric
+                s += Y[a, b] * _skew(ri, b, c)
                 cx += C[a, b] * X[b, c]
                 cy += C[a, b] * Iw[b, c]
             out[a, c] += scale * ((im if a == c else 0.0) - s)
