@@ -318,7 +318,7 @@ def _ovl(ba, i, bb, j):
 @njit(cache=True, inline="always")
 def _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out):
     """Exact capsule test (float64) of slots i, j with segment ids sa < sb (slot i holds sa); on a hit
-    append (sa, sb, s, t) to the outputs (grown as needed).
+    append (sa, sb, s, t) to the outputs (grown as needed). Returns (out_pairs, out_par, n_out).
 
     First a separating-axis reject along n = d_a × d_b: the distance of the two carrier lines,
     |Δ·n| / |n|, bounds the segment distance from below, so a pair with (Δ·n)² > (r_a + r_b)² |n|²
@@ -332,12 +332,11 @@ def _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out):
     dn = (nx * (seg64[j, 0] - seg64[i, 0]) + ny * (seg64[j, 1] - seg64[i, 1])
           + nz * (seg64[j, 2] - seg64[i, 2]))
     if dn * dn > rr * rr * (nx * nx + ny * ny + nz * nz) * (1.0 + 1e-6):
-        return False, out_pairs, out_par, n_out
+        return out_pairs, out_par, n_out
     s, t, d2 = segment_segment_closest(seg64[i, 0], seg64[i, 1], seg64[i, 2], seg64[i, 3], seg64[i, 4],
                                        seg64[i, 5], seg64[j, 0], seg64[j, 1], seg64[j, 2], seg64[j, 3],
                                        seg64[j, 4], seg64[j, 5])
-    hit = d2 < rr * rr
-    if hit:
+    if d2 < rr * rr:
         if n_out == out_pairs.shape[0]:
             out_pairs = _grow2(out_pairs, 2 * n_out)
             out_par = _grow2(out_par, 2 * n_out)
@@ -346,19 +345,18 @@ def _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out):
         out_par[n_out, 0] = s
         out_par[n_out, 1] = t
         n_out += 1
-    return hit, out_pairs, out_par, n_out
+    return out_pairs, out_par, n_out
 
 
 @njit(cache=True, parallel=True)
-def leaf_lanes(leaf_node, first, count, sbox, S, lfirst):
+def leaf_lanes(leaf_node, first, count, sbox, S):
     """Leaf records for :func:`traverse_packed`: S[e, c, a] = coordinate c (min x, y, z, max x, y, z)
-    of the box of lane a of leaf e (the segment in slot ``first + a``), empty lanes (+inf, −inf);
-    lfirst[e] = the leaf's first slot. Structure of arrays, so one leaf-against-box test is a SIMD pass."""
+    of the box of lane a of leaf e (the segment in slot ``first + a``), empty lanes (+inf, −inf).
+    Structure of arrays, so one leaf-against-box test is a SIMD pass."""
     W = S.shape[2]
     for e in prange(leaf_node.shape[0]):
         u = leaf_node[e]
         k0 = first[u]
-        lfirst[e] = k0
         for a in range(W):
             for c in range(3):
                 if a < count[u]:
@@ -406,9 +404,9 @@ def _pair(i, j, sid, seg64, out_pairs, out_par, n_out, n_prim):
         return out_pairs, out_par, n_out, n_prim
     n_prim += 1
     if sa < sb:
-        _, out_pairs, out_par, n_out = _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out)
+        out_pairs, out_par, n_out = _emit(i, j, sa, sb, seg64, out_pairs, out_par, n_out)
     else:
-        _, out_pairs, out_par, n_out = _emit(j, i, sb, sa, seg64, out_pairs, out_par, n_out)
+        out_pairs, out_par, n_out = _emit(j, i, sb, sa, seg64, out_pairs, out_par, n_out)
     return out_pairs, out_par, n_out, n_prim
 
 

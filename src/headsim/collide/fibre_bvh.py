@@ -458,9 +458,10 @@ class PackedFibreBVH(FibreBVH):
     child, first, count : (n_nodes,) int64 — first child (the second is child + 1; −1 at leaves) and
         the leaf-slot range ``perm[first : first + count]`` of every node.
     perm : (S,) int64 global segment id of every leaf slot.
-    nbox : (n_nodes, 8) float32 node records, sbox : (S, 8) float32 segment records in slot order:
-        box ``[min x, y, z, max x, y, z]`` (m) in columns 0–5, int32 ids in 6–7
-        (``_kernels_fibre_packed.traverse_packed``). Node 1 is an unused slot.
+    nbox : (n_nodes, 8) float32 node records: box ``[min x, y, z, max x, y, z]`` (m) in columns 0–5,
+        int32 child/leaf and count in 6–7 (``_kernels_fibre_packed.traverse_packed``); node 1 is an
+        unused slot. sbox : (S, 8) float32 segment boxes in slot order (columns 0–5), refitted first and
+        copied into ``leaf_boxes``.
     seg64 : (S, 8) float64 endpoints (m) and radius of every slot's segment (exact test).
     leaf_boxes : (L, 6, W) float32 segment boxes of every leaf as W = 8·⌈leaf_size/8⌉ lanes (structure of
         arrays, empty lanes +inf/−inf), leaf_first : (L,) first slot of every leaf, sid : (S, 2) int32
@@ -516,25 +517,23 @@ class PackedFibreBVH(FibreBVH):
         self.seg64 = np.empty((s, 8))
         self._slot_node = np.ascontiguousarray(f.segment_start[self.perm])
         self._slot_radius = np.ascontiguousarray(f.radius[self.perm])
-        nmeta, smeta = self.nbox.view(np.int32), self.sbox.view(np.int32)
+        nmeta = self.nbox.view(np.int32)
         self._leaf_node = np.flatnonzero(self.child < 0)
         leaf_of_node = np.full(n, -1, np.int64)
         leaf_of_node[self._leaf_node] = np.arange(len(self._leaf_node))
         nmeta[:, 6] = np.where(self.child >= 0, self.child, -(leaf_of_node + 1))
         nmeta[:, 7] = self.count
-        smeta[:, 6] = self.perm
-        smeta[:, 7] = f.segment_fibre[self.perm]
-        self.sid = np.ascontiguousarray(smeta[:, 6:8])
+        self.sid = np.column_stack([self.perm, f.segment_fibre[self.perm]]).astype(np.int32)
+        self.leaf_first = self.first[self._leaf_node]          # fixed by the tree: not refitted
         lanes = 8 * ((self.leaf_size + 7) // 8)
         self.leaf_boxes = np.empty((len(self._leaf_node), 6, lanes), np.float32)
-        self.leaf_first = np.empty(len(self._leaf_node), np.int64)
         self._refit()
         self._quality_ref = self._quality()
 
     def _refit(self):
         P.refit_packed(self.nodes, self._slot_node, self._slot_radius, self.child, self.first, self.count,
                        self.sbox, self.nbox, self.seg64)
-        P.leaf_lanes(self._leaf_node, self.first, self.count, self.sbox, self.leaf_boxes, self.leaf_first)
+        P.leaf_lanes(self._leaf_node, self.first, self.count, self.sbox, self.leaf_boxes)
 
     def update(self, nodes=None) -> float:
         """Refit all boxes to new node positions (N, 3) m without changing the tree (Alg. 5). Returns s."""
