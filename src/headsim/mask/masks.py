@@ -374,8 +374,9 @@ CONTOUR_FILE = Path(__file__).with_name("cushion_contours.json")
 
 @lru_cache(maxsize=1)
 def _stored_contours() -> dict:
-    if not CONTOUR_FILE.exists():
-        return {}
+    if not CONTOUR_FILE.exists():  # part of the package: a missing file must not silently uncontour
+        raise FileNotFoundError(f"{CONTOUR_FILE} is missing from the installation; regenerate it with "
+                                "`python -m headsim.mask.contour --write` or use contour=False")
     return json.loads(CONTOUR_FILE.read_text())
 
 
@@ -385,8 +386,8 @@ def design_of(kind: str, contour: bool = True) -> MaskDesign:
     if kind not in _DESIGNS:
         raise ParameterError(f"unknown mask kind {kind!r}; use one of {', '.join(_DESIGNS)}")
     design = _DESIGNS[kind]
-    stored = _stored_contours().get(kind) if contour else None
-    if stored is not None:
+    if contour:
+        stored = _stored_contours()[kind]
         design = replace(design, edge_correction=(tuple(stored["a"]), tuple(stored["b"])))
     return design
 
