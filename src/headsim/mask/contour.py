@@ -15,8 +15,9 @@ designed on the patient's own scan (e.g. Kwon et al., PLOS ONE 2022, custom-fit 
    (the flat edge and its rounded corners) to the skin, and its smallest value over the section;
 3. that gap, minus its smallest value around the outline, is how far the section must move towards
    the face so that the whole edge touches the skin at once; it is smoothed to the lowest Fourier
-   harmonics of the outline angle (``harmonics``; a 10 mm wide silicone cushion cannot follow skin
-   features shorter than about two widths, about 8 harmonics on the 17 cm nasal outline).
+   harmonics of the outline angle (``harmonics``, default 16: a 10 mm wide cushion edge cannot be
+   shaped finer than about its own width, 16 harmonics on the 17 cm nasal outline; measured on the
+   mean face, 8 harmonics leave a 0.58 mm spread of the section gaps, 16 leave 0.19 mm).
 
 The correction is a function of the outline angle ``phi`` (:func:`outline_angle`), in metres at size
 M: S and L are the same design scaled (they are not contoured to a smaller or larger face).
@@ -32,7 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from headsim.errors import ParameterError
-from headsim.mask.landmarks import Landmarks
+from headsim.mask.landmarks import Landmarks, find_landmarks
 from headsim.mask.masks import MaskDesign, build_parametric_mask, design_of, outline_angle
 from headsim.mask.placement import gaps_along, place_mask
 from headsim.mesh import SurfaceMesh
@@ -92,7 +93,7 @@ def _section_gaps(design: MaskDesign, face: SurfaceMesh, landmarks: Landmarks | 
 
 
 def contour_correction(design: MaskDesign | str, face: SurfaceMesh, landmarks: Landmarks | None = None,
-                       harmonics: int = 8, edge_length: float = 2e-3) -> Contour:
+                       harmonics: int = 16, edge_length: float = 2e-3) -> Contour:
     """Contour ``design`` (a MaskDesign or a built-in kind, "nasal" / "oronasal") to ``face``.
 
     Returns a :class:`Contour` whose ``design`` has the smoothed edge correction (module doc); any
@@ -101,19 +102,18 @@ def contour_correction(design: MaskDesign | str, face: SurfaceMesh, landmarks: L
     """
     if not 1 <= int(harmonics) <= 32:
         raise ParameterError(f"harmonics must be 1–32, got {harmonics}")
-    base = design_of(design) if isinstance(design, str) else design
-    base = replace(base, edge_correction=None)
+    base = design_of(design, contour=False) if isinstance(design, str) else replace(design, edge_correction=None)
     from headsim.collide import TriangleBVH
 
     bvh = TriangleBVH(face.vertices, face.triangles)
+    landmarks = landmarks if landmarks is not None else find_landmarks(face)  # once for both placements
     phi, gap = _section_gaps(base, face, landmarks, edge_length, bvh)
     rel = gap - gap.min()
     a, b = _fourier_fit(phi, rel, int(harmonics))
     contoured = replace(base, edge_correction=(a, b))
-    phi2, gap2 = _section_gaps(contoured, face, landmarks, edge_length, bvh)
-    order = np.argsort(phi2)
-    residual = np.interp(phi, phi2[order], (gap2 - gap2.min())[order], period=2 * np.pi)
-    return Contour(design=contoured, phi=phi, gap_before=rel, residual=residual)
+    # the outline (and so every section's phi) does not move: only the edge heights change
+    _, gap2 = _section_gaps(contoured, face, landmarks, edge_length, bvh)
+    return Contour(design=contoured, phi=phi, gap_before=rel, residual=gap2 - gap2.min())
 
 
 def bundled_contours(harmonics: int = 16) -> dict:
@@ -121,7 +121,6 @@ def bundled_contours(harmonics: int = 16) -> dict:
     :data:`headsim.mask.masks.CONTOUR_FILE`: {kind: {"a", "b", "harmonics", "face",
     "spread_before_mm", "spread_after_mm"}}."""
     from headsim.data import face_path
-    from headsim.mask.landmarks import find_landmarks
     from headsim.mesh.io import load_surface
 
     face = load_surface(face_path("neutral"))
