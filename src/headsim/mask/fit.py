@@ -151,6 +151,7 @@ import scipy.sparse as sp
 
 from headsim.errors import ConvergenceError, DivergenceError, HeadsimError, MeshError, ParameterError
 from headsim.mask.landmarks import Landmarks, find_landmarks
+from headsim.mask.leak import GAP_CAP, LARGE_LEAK_LPM, SKIN_ROUGHNESS, LeakEstimate, estimate_leak
 from headsim.mask.masks import MaskModel
 from headsim.mask.placement import Placement, place_mask
 from headsim.mask.pressure import CAPILLARY_CLOSING_PA, THERAPY_PRESSURE_PA, PressureSummary, summarize_pressure
@@ -210,6 +211,10 @@ class FitOptions:
     rotate : let the mask pitch and yaw about the strap point (moment balance), else translate only
     friction : Coulomb coefficient mu between skin and cushion (default 0: frictionless;
         SKIN_SILICONE_FRICTION = 0.5 is the literature value, module doc "Friction")
+    leak_threshold_lpm : L/min, largest unintentional leak judged clinically acceptable (ResMed's
+        "large leak" 24 L/min, :mod:`headsim.mask.leak`)
+    skin_roughness : m, residual aperture of a skin contact below the therapy pressure (leak model)
+    leak_gap_cap : m, largest film aperture of the leak model (where no cushion is near)
     """
 
     tissue_modulus: float = TISSUE_MODULUS
@@ -227,15 +232,22 @@ class FitOptions:
     balance_tolerance: float = 0.01
     rotate: bool = True
     friction: float = 0.0
+    leak_threshold_lpm: float = LARGE_LEAK_LPM
+    skin_roughness: float = SKIN_ROUGHNESS
+    leak_gap_cap: float = GAP_CAP
 
     def __post_init__(self):
         if not (np.isfinite(self.friction) and 0 <= self.friction <= 3):
             raise ParameterError(f"friction coefficient must be 0-3, got {self.friction}")
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
-                     "therapy_pressure", "pressure_threshold", "balance_tolerance"):
+                     "therapy_pressure", "pressure_threshold", "balance_tolerance", "leak_threshold_lpm",
+                     "skin_roughness", "leak_gap_cap"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ParameterError(f"{name} must be > 0, got {v}")
+        if self.skin_roughness >= self.leak_gap_cap:
+            raise ParameterError(f"skin_roughness ({self.skin_roughness} m) must be below leak_gap_cap "
+                                 f"({self.leak_gap_cap} m)")
         if not 0.0 < self.tissue_poisson < 0.5:
             raise ParameterError(f"tissue_poisson must lie in (0, 0.5), got {self.tissue_poisson}")
         if int(self.tissue_layers) != self.tissue_layers or self.tissue_layers < 1:
@@ -412,6 +424,7 @@ class FitResult:
     newton_iterations, contact_updates : solver effort; seconds : wall time of the solve
     mode : "nonlinear" (:func:`problem_fit`) or "condensed" (:mod:`headsim.mask.condensed`; its
         ``newton_iterations`` are active-set iterations)
+    leak : LeakEstimate, the unintentional leak flow at the therapy pressure (:mod:`headsim.mask.leak`)
     """
 
     force: float
@@ -432,10 +445,21 @@ class FitResult:
     contact_updates: int
     seconds: float
     mode: str = "nonlinear"
+    leak: LeakEstimate | None = None
 
     @property
     def sealed(self) -> bool:
         return bool(self.seal.sealed)
+
+    @property
+    def leak_flow_lpm(self) -> float | None:
+        """Estimated unintentional leak, L/min (None when no leak estimate was made)."""
+        return None if self.leak is None else self.leak.flow_lpm
+
+    @property
+    def leak_acceptable(self) -> bool | None:
+        """Leak at most the clinically acceptable threshold (None without an estimate)."""
+        return None if self.leak is None else self.leak.acceptable
 
     @property
     def pressure_kpa(self) -> np.ndarray:
@@ -451,6 +475,10 @@ class FitResult:
             **self.summary.as_dict(),
             "sealed": self.sealed,
             "seal": self.seal.as_dict(),
+            "leak_flow_lpm": self.leak_flow_lpm,
+            "leak_acceptable": self.leak_acceptable,
+            "leak_threshold_lpm": None if self.leak is None else self.leak.threshold_lpm,
+            "leak": None if self.leak is None else self.leak.as_dict(),
             "mask_displacement_mm": self.mask_displacement * 1e3,
             "mask_rotation_deg": {"pitch": self.mask_rotation_deg[0], "yaw": self.mask_rotation_deg[1]}
             if len(self.mask_rotation_deg) == 2 else None,
@@ -799,4 +827,13 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
         areas=areas, summary=summary, seal=seal, gap=gap, deformed_face=deformed_face, deformed_mask=deformed_mask,
         mask_displacement=float(u[0]), mask_rotation_deg=tuple(np.degrees(u[1:] / _ROT_RADIUS).tolist()),
         state=FitState(x, tuple(u.tolist()), force), newton_iterations=iters,
-        contact_updates=updates, seconds=time.perf_counter() - t0)
+        contact_updates=updates, seconds=time.perf_counter() - t0,
+        leak=fit_leak(p, deformed_face, deformed_mask, pressure))
+
+
+def fit_leak(problem: FitProblem, deformed_face: SurfaceMesh, deformed_mask: MaskModel,
+             pressure: np.ndarray) -> LeakEstimate:
+    """The leak estimate of a fit (:func:`headsim.mask.leak.estimate_leak` with the problem's options)."""
+    o = problem.options
+    return estimate_leak(deformed_face, deformed_mask, pressure, problem.airway, o.therapy_pressure,
+                         skin_roughness=o.skin_roughness, gap_cap=o.leak_gap_cap, threshold_lpm=o.leak_threshold_lpm)
