@@ -152,3 +152,17 @@ def test_real_search_is_consistent():
         assert c.peak_pressure_kpa >= c.mean_pressure_kpa > 0
     assert res.as_dict()["n_solves"] == res.n_solves
     assert set(forces) >= {8.0}
+
+
+def test_non_monotone_leak_is_reported_as_such(monkeypatch):
+    """Acceptable between 5 and 20 N only (a mask that pitches open at high force): the answer is the
+    smallest acceptable solved force, flagged "non-monotone"; an acceptable fit followed by an
+    unacceptable larger one never counts as 'acceptable from here on'."""
+    def fake(problem, force, warm_start=None):
+        r = _FakeFit(force, 1e9)
+        r.leak_acceptable = 5.0 <= force <= 20.0
+        return r
+
+    monkeypatch.setattr(search_mod, "problem_fit", fake)
+    res = least_seal_force(None, SearchOptions(start=10.0, maximum=60.0))
+    assert res.leak_status == "non-monotone" and res.leak_force == 10.0 and res.leak_solves == 0

@@ -169,11 +169,14 @@ class LeakEstimate:
 
 
 def leak_aperture(face: SurfaceMesh, mask: MaskModel, pressure_pa: np.ndarray, therapy_pressure: float,
-                  skin_roughness: float = SKIN_ROUGHNESS, gap_cap: float = GAP_CAP) -> np.ndarray:
+                  skin_roughness: float = SKIN_ROUGHNESS, gap_cap: float = GAP_CAP,
+                  distance: np.ndarray | None = None) -> np.ndarray:
     """(n,) m: the film aperture at every face vertex (module doc, "Aperture").
 
     face : the deformed face, m; mask : the deformed mask (its skin-side ``contact_triangles``);
-    pressure_pa : (n,) Pa contact pressure per face vertex; therapy_pressure : Pa
+    pressure_pa : (n,) Pa contact pressure per face vertex; therapy_pressure : Pa;
+    distance : (n,) m skin-cushion distance to use instead of the closest-point one (e.g. the axial
+    ``FitResult.gap``, for comparison; inf where none)
     """
     from headsim.collide import TriangleBVH
 
@@ -182,8 +185,14 @@ def leak_aperture(face: SurfaceMesh, mask: MaskModel, pressure_pa: np.ndarray, t
     p = np.asarray(pressure_pa, dtype=np.float64)
     if p.shape != (face.n_vertices,):
         raise ParameterError(f"pressure_pa must have shape ({face.n_vertices},), got {p.shape}")
-    bvh = TriangleBVH(mask.tetmesh.vertices, mask.contact_triangles)
-    d = bvh.closest_points(face.vertices, max_distance=gap_cap).distance
+    if distance is None:
+        d = TriangleBVH(mask.tetmesh.vertices, mask.contact_triangles).closest_points(
+            face.vertices, max_distance=gap_cap).distance
+    else:
+        d = np.asarray(distance, dtype=np.float64)
+        if d.shape != p.shape:
+            raise ParameterError(f"distance must have shape {p.shape}, got {d.shape}")
+        d = np.where(np.isnan(d), np.inf, d)
     h = np.clip(np.where(np.isfinite(d), d, gap_cap), skin_roughness, gap_cap)
     h[p > 0] = skin_roughness
     h[p > therapy_pressure] = 0.0
@@ -193,17 +202,19 @@ def leak_aperture(face: SurfaceMesh, mask: MaskModel, pressure_pa: np.ndarray, t
 def estimate_leak(face: SurfaceMesh, mask: MaskModel, pressure_pa: np.ndarray, airway: np.ndarray,
                   therapy_pressure: float, *, skin_roughness: float = SKIN_ROUGHNESS, gap_cap: float = GAP_CAP,
                   threshold_lpm: float = LARGE_LEAK_LPM, escape_vertices: np.ndarray | None = None,
-                  viscosity: float = AIR_VISCOSITY, density: float = AIR_DENSITY) -> LeakEstimate:
+                  viscosity: float = AIR_VISCOSITY, density: float = AIR_DENSITY,
+                  distance: np.ndarray | None = None) -> LeakEstimate:
     """Unintentional leak flow of a fitted mask at the therapy pressure (module doc).
 
     face : deformed face (full, open), m; mask : deformed mask; pressure_pa : (n,) Pa;
     airway : face vertex ids of the airway (source); therapy_pressure : Pa (> 0);
-    escape_vertices : sink (default the outer boundary, as :func:`headsim.mask.analyse_seal`)
+    escape_vertices : sink (default the outer boundary, as :func:`headsim.mask.analyse_seal`);
+    distance : see :func:`leak_aperture` (default: the closest-point distance)
     """
     if not (np.isfinite(threshold_lpm) and threshold_lpm > 0):
         raise ParameterError(f"leak threshold must be > 0 L/min, got {threshold_lpm}")
     t0 = time.perf_counter()
-    h = leak_aperture(face, mask, pressure_pa, therapy_pressure, skin_roughness, gap_cap)
+    h = leak_aperture(face, mask, pressure_pa, therapy_pressure, skin_roughness, gap_cap, distance)
     sink = outer_boundary(face) if escape_vertices is None else np.unique(np.asarray(escape_vertices, np.int64))
     src = np.setdiff1d(np.asarray(airway, np.int64), sink)
     res = solve_thin_film(face.vertices, face.triangles, h, src, sink, therapy_pressure, viscosity, density)

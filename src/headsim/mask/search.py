@@ -22,8 +22,12 @@ also gives a point of the force -> contact area and force -> peak pressure curve
 carries a leak-flow estimate (:mod:`headsim.mask.leak`) and the judgement "leak <= threshold"
 (:attr:`FitResult.leak_acceptable`), assumed monotone in the force like the seal. After the strict
 search, the solved forces are reused: the smallest acceptable one and the largest unacceptable
-one below it form the bracket (halving down from it, to ``minimum``, when every solved force
-below it is acceptable), bisected to the same tolerance, with at most ``max_solves`` further fits.
+one below it form the bracket -- the smallest force from which every solved force is acceptable,
+so an isolated acceptable fit below an unacceptable one does not count (the leak is not always
+monotone: the mask pitches on its strap) -- halving down from it, to ``minimum``, when no solved
+force below it is unacceptable, bisected to the same tolerance, with at most ``max_solves``
+further fits. When the largest solved force is unacceptable but a smaller one is not, the answer
+is that smaller force, unrefined, with status "non-monotone".
 A sealed fit leaks 0, so the answer is at most the strict seal force. When no solved force is
 acceptable the answer is None ("leak above the threshold up to the largest force solved"); no fit
 above the strict search's range is tried. Cost on the demo (nonlinear, 10-30 N, 1 N): see
@@ -105,7 +109,9 @@ class SearchResult:
     failures : messages of the fits that did not converge
     leak_force : N, the least force whose leak is acceptable (module doc), or None
     leak_lower_bound : N, the largest force found with an unacceptable leak (None if none below)
-    leak_status : "acceptable", "acceptable-at-minimum", "not-acceptable", "max-solves", "solve-failed"
+    leak_status : "acceptable", "acceptable-at-minimum", "not-acceptable", "non-monotone" (acceptable at
+        some solved force but not at the largest: leak_force is the smallest acceptable one, unrefined),
+        "max-solves", "solve-failed"
     leak_solves : fits added for the leak answer (beyond the strict search's)
     leak_fit : FitResult at ``leak_force`` (None when there is none)
     """
@@ -282,10 +288,19 @@ def _leak_bracket(solve, fits: dict, options: SearchOptions, budget_left):
     def accept(r):
         return bool(r.leak_acceptable)
 
-    ok = sorted(f for f, r in fits.items() if accept(r))
-    if not ok:
-        return None, max(fits), "not-acceptable"
-    hi = ok[0]
+    forces = sorted(fits)
+    ok = [accept(fits[f]) for f in forces]
+    if not any(ok):
+        return None, forces[-1], "not-acceptable"
+    if not ok[-1]:
+        # acceptable somewhere but not at the largest force solved: the leak is not monotone here
+        first = forces[ok.index(True)]
+        return first, max([f for f in forces if f < first], default=None), "non-monotone"
+    # the smallest force from which every solved force is acceptable
+    k = len(ok) - 1
+    while k > 0 and ok[k - 1]:
+        k -= 1
+    hi = forces[k]
     below = [f for f in fits if f < hi]
     lo = max(below) if below else None
     while lo is None:
