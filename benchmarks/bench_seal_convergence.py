@@ -9,8 +9,9 @@ midpoint-subdivided once, 1.4 mm: the same polyhedral surface, finer) -- it runs
 search (``headsim.mask.least_seal_force``, default SearchOptions: 10 N start, 1-60 N, tolerance
 max(0.5 N, 5 %)) in the condensed linear mode, and with ``--nonlinear`` also the nonlinear search
 (10-30 N, as benchmarks/bench_mask.py) for the outline/section/corner rows on the unrefined skin.
-Prints the seal force (or the largest leaking force when the search stops without a seal), fits,
-wall and CPU time, and the time of each row against the first (the default mesh), measured in this
+Prints the seal force (or the largest leaking force when the search stops without a seal), the
+least force whose leak-flow estimate is acceptable (<= 24 L/min, :mod:`headsim.mask.leak`) with the
+leak at the forces the search solved at 10 and 20 N, fits, wall and CPU time, and the time of each row against the first (the default mesh), measured in this
 process. The table it printed is recorded in :mod:`headsim.mask.fit` ("Mesh convergence").
 """
 
@@ -29,9 +30,13 @@ QUICK = [(4.0, 4.0, None, 0), (4.0, 4.0, 4, 0), (2.0, 4.0, 4, 0), (4.0, 4.0, 4, 
 
 
 def _answer(res) -> str:
-    if res.seal_force is not None:
-        return f"seals at {res.seal_force:6.2f} N"
-    return f"no seal, leaks at {res.lower_bound} N ({res.status})"
+    strict = (f"seals at {res.seal_force:6.2f} N" if res.seal_force is not None
+              else f"no seal, leaks at {res.lower_bound} N ({res.status})")
+    leak = {c.force: c.leak_flow_lpm for c in res.curve}
+    at = ", ".join(f"{leak[f]:.2f} L/min at {f:g} N" for f in (10.0, 20.0) if f in leak)
+    acc = (f"leak acceptable from {res.leak_force:.2f} N ({res.leak_status})" if res.leak_force is not None
+           else f"leak not acceptable up to {res.leak_lower_bound} N")
+    return f"{strict}; {acc}; {at}"
 
 
 def main(argv=None) -> None:
