@@ -203,20 +203,8 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
     r = solve(f)
     status = "sealed"
     if r.sealed:
-        hi = f
-        while len(fits) < options.max_solves:
-            f = max(f / 2.0, options.minimum)
-            r = solve(f)
-            if r is None:
-                status = "solve-failed"
-                break
-            if not r.sealed:
-                lo = f
-                break
-            hi = f
-            if f <= options.minimum:
-                status = "seals-at-minimum"
-                break
+        lo, hi, stop = _halve_down(solve, lambda r: r.sealed, f, options, lambda: len(fits) < options.max_solves)
+        status = {"at-minimum": "seals-at-minimum", "solve-failed": "solve-failed"}.get(stop, status)
     else:
         lo = f
         ceiling = None        # smallest force whose solve failed while bracketing upwards
@@ -265,6 +253,22 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
     return SearchResult(hi, lo, width, fits[hi], curve, n, time.perf_counter() - t0, status, options, failed, **leak)
 
 
+def _halve_down(solve, accept, hi: float, options: SearchOptions, budget_left):
+    """From an accepted force ``hi``, halve (down to ``minimum``) until a force is rejected:
+    (rejected force or None, smallest accepted force, None or "at-minimum" | "max-solves" | "solve-failed")."""
+    while budget_left():
+        if hi <= options.minimum:
+            return None, hi, "at-minimum"
+        f = max(hi / 2.0, options.minimum)
+        r = solve(f)
+        if r is None:
+            return None, hi, "solve-failed"
+        if not accept(r):
+            return f, hi, None
+        hi = f
+    return None, hi, "max-solves"
+
+
 def _bisect(solve, accept, lo: float, hi: float, options: SearchOptions, budget_left):
     """Bisect [lo rejected, hi accepted] to max(abs_tol, rel_tol hi): (lo, hi, None) or, stopped early,
     (lo, hi, "max-solves" | "solve-failed")."""
@@ -303,18 +307,9 @@ def _leak_bracket(solve, fits: dict, options: SearchOptions, budget_left):
     hi = forces[k]
     below = [f for f in fits if f < hi]
     lo = max(below) if below else None
-    while lo is None:
-        if hi <= options.minimum:
-            return hi, None, "acceptable-at-minimum"
-        if not budget_left():
-            return hi, None, "max-solves"
-        f = max(hi / 2.0, options.minimum)
-        r = solve(f)
-        if r is None:
-            return hi, None, "solve-failed"
-        if accept(r):
-            hi = f
-        else:
-            lo = f
+    if lo is None:
+        lo, hi, stop = _halve_down(solve, accept, hi, options, budget_left)
+        if lo is None:
+            return hi, None, {"at-minimum": "acceptable-at-minimum"}.get(stop, stop)
     lo, hi, stop = _bisect(solve, accept, lo, hi, options, budget_left)
     return hi, lo, stop or "acceptable"
