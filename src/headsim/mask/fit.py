@@ -137,8 +137,9 @@ force along the approach axis) as a quasi-static finite-element contact problem:
 Outputs (:class:`FitResult`): total contact force (balances F at equilibrium; checked), contact
 area, per-face-vertex pressure (Pa; kPa in reports), peak and mean pressure, area above the capillary
 closing pressure (32 mmHg, Landis 1930), seal analysis (:func:`headsim.mask.analyse_seal`: contact
-pressure above the therapy pressure forming a closed loop around the airway) with leak paths, and
-the deformed face and mask.
+pressure above the therapy pressure forming a closed loop around the airway) with leak paths, the
+leak-flow estimate (:mod:`headsim.mask.leak`: L/min at the therapy pressure, its channels, and
+whether it is below the clinically acceptable ``leak_threshold_lpm``), and the deformed face and mask.
 """
 
 from __future__ import annotations

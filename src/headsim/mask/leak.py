@@ -29,8 +29,12 @@ no-flux walls). Air: mu = 1.81e-5 Pa s, rho = 1.2 kg/m^3 (20 deg C).
   ``skin_roughness`` and at most ``gap_cap``. The closest distance, not the gap along the approach
   axis (``FitResult.gap``), because the film thickness is the distance across the film: where the
   skin is steep to the axis (beside the nose) the axial gap is the normal gap / cos(theta), and
-  h^3 makes that a factor 1/cos^3 in the flow (measured on the demo fit at 30 N, leak-path
-  crossings: axial / closest 1.0-2.3, see :mod:`headsim.mask.fit` "Leak flow");
+  h^3 makes that a factor up to 1/cos^3 in the viscous flow; where the axial ray misses the
+  cushion near its edge it reports no cushion at all (inf) although the cushion is a fraction of
+  a mm away. Measured on the demo configuration (``benchmarks/bench_leak.py``, nonlinear fits at
+  2.5-25 N): with the axial gap the leak estimate is 2.1-3.6x the closest-point one (the axial
+  gap the estimate was never the smaller one in these nonlinear fits); see :mod:`headsim.mask.fit` "Leak
+  flow";
 - ``gap_cap`` = 2 mm where no cushion is near (inside the mask, outside the cushion): the film
   equation is not meant for open air, and the resistance of a 2 mm film is (2 mm / 50 um)^3 = 6e4
   times below that of a 50 um channel of the same shape, so the cap does not change a leak that
