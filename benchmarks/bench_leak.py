@@ -33,7 +33,8 @@ def main(argv=None) -> None:
 
     print(f"bench_leak: {os.cpu_count()} CPUs visible; load average {os.getloadavg()[0]:.1f}")
     face = load_surface(face_path("neutral"))
-    problem = prepare_fit(face, make_mask("nasal-M"), FitOptions(), landmarks=find_landmarks(face))
+    # the CLI's mask (headsim demo: --mask-edge 4 mm)
+    problem = prepare_fit(face, make_mask("nasal-M", edge_length=4e-3), FitOptions(), landmarks=find_landmarks(face))
     fitter = problem_fit
     if args.condensed:
         from headsim.mask.condensed import condense_fit, condensed_fit

@@ -32,8 +32,8 @@ no-flux walls). Air: mu = 1.81e-5 Pa s, rho = 1.2 kg/m^3 (20 deg C).
   h^3 makes that a factor up to 1/cos^3 in the viscous flow; where the axial ray misses the
   cushion near its edge it reports no cushion at all (inf) although the cushion is a fraction of
   a mm away. Measured on the demo configuration (``benchmarks/bench_leak.py``, nonlinear fits at
-  2.5-25 N): with the axial gap the leak estimate is 2.1-3.6x the closest-point one (the axial
-  gap the estimate was never the smaller one in these nonlinear fits); see :mod:`headsim.mask.fit` "Leak
+  2.5-25 N, nasal-M at 4 and 3 mm): with the axial gap the leak estimate is 1.9-3.6x the
+  closest-point one, never smaller; see :mod:`headsim.mask.fit` "Leak
   flow";
 - ``gap_cap`` = 2 mm where no cushion is near (inside the mask, outside the cushion): the film
   equation is not meant for open air, and the resistance of a 2 mm film is (2 mm / 50 um)^3 = 6e4
