@@ -198,7 +198,7 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
     else:
         lo = "-" if result.leak_lower_bound is None else f"{result.leak_lower_bound:.2f} N"
         typer.echo(f"least force with an acceptable leak (<= {thr:g} L/min, estimate): {result.leak_force:.2f} N "
-                   f"(largest with more leak: {lo}; leak there {result.leak_fit.leak_flow_lpm:.2f} L/min; "
+                   f"(largest with more leak: {lo}; leak at {result.leak_force:.2f} N: {result.leak_fit.leak_flow_lpm:.2f} L/min; "
                    f"{result.leak_solves} extra fits) -> {out}/report.html")
     return result
 

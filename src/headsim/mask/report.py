@@ -90,7 +90,7 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
         else:
             lo = "-" if search.leak_lower_bound is None else f"{search.leak_lower_bound:.2f} N"
             rows.append((f"least force with leak <= {thr:g} L/min",
-                         f"{search.leak_force:.2f} N (largest with more leak: {lo}; leak there "
+                         f"{search.leak_force:.2f} N (largest with more leak: {lo}; leak at that force "
                          f"{search.leak_fit.leak_flow_lpm:.2f} L/min; {search.leak_solves} extra fit(s))"))
         rows.append(("fits in the search", f"{search.n_solves} ({search.seconds:.1f} s)"))
     rows += [
