@@ -61,15 +61,21 @@ def test_mask_fit_writes_the_report(tmp_path, capsys):
     data = json.loads((out / "result.json").read_text())
     assert data["fit"]["force_balance_error"] < 0.01
     assert ("SEALED" in stdout) == data["fit"]["sealed"]
+    assert f"leak {data['leak_flow_lpm']:.2f} L/min" in stdout and data["leak_threshold_lpm"] == 24.0
+    from headsim.cli import mask_cmd
+    from headsim.mask.leak import LARGE_LEAK_LPM
+
+    assert mask_cmd.LARGE_LEAK_LPM == LARGE_LEAK_LPM
 
 
 def test_condensed_mode_fit_writes_the_report(tmp_path, capsys):
     out = tmp_path / "fit"
     code, stdout, err = _run(["mask", "fit", "--mode", "condensed", "--force", "8", "--crop", "6", "--mask-edge", "5",
-                              "--out", str(out)], capsys)
+                              "--leak-threshold", "500", "--out", str(out)], capsys)
     assert code in (0, None), err
     data = json.loads((out / "result.json").read_text())
     assert data["fit"]["solver_mode"] == "condensed"
+    assert data["leak_threshold_lpm"] == 500.0 and data["leak_acceptable"] == (data["leak_flow_lpm"] <= 500.0)
     assert data["fit"]["force_balance_error"] < 1e-9
     assert "condensed" in (out / "report.html").read_text()
 

@@ -46,12 +46,16 @@ def test_report_files(report_dir):
     assert data["fit"]["contact_force_n"] == pytest.approx(fit.contact_force)
     assert data["fit"]["peak_pressure_kpa"] == pytest.approx(fit.summary.peak_pressure / 1e3)
     assert "search" in data and data["search"]["n_solves"] == 1
+    assert data["leak_flow_lpm"] == pytest.approx(fit.leak_flow_lpm) and data["leak_flow_lpm"] > 0
+    assert data["leak_acceptable"] == fit.leak_acceptable and data["leak_threshold_lpm"] == 24.0
+    assert len(data["fit"]["leak"]["channels"]) == len(fit.leak.channels)
     p = np.loadtxt(report_dir / "pressure_kpa.txt")
     assert p.shape == fit.pressure.shape and np.allclose(p, fit.pressure / 1e3, rtol=1e-5)
     html = (report_dir / "report.html").read_text()
     assert "<script" in html and "plotly" in html.lower()
     assert "https://cdn" not in html.split("<body>")[0]  # plotly.js embedded: works offline
     assert "9.3-15.0 kPa" in html  # the published sanity figures are quoted
+    assert "leak flow at the therapy pressure" in html and "leak channels" in html
 
 
 def _chromium():

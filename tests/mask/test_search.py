@@ -23,19 +23,52 @@ class _Summary:
 
 
 class _FakeFit:
-    def __init__(self, force, threshold):
+    def __init__(self, force, threshold, leak_threshold=None):
         self.force = force
         self.sealed = force >= threshold
+        # leak acceptable from leak_threshold on (default: where it seals), decreasing with the force
+        self.leak_acceptable = force >= (threshold if leak_threshold is None else leak_threshold)
+        self.leak_flow_lpm = 0.0 if self.sealed else 100.0 / force
         self.summary = _Summary(force, 1e3 * force, 5e2 * force, 0.5 * force)
         self.seconds = 0.0
         self.state = ("state", force)
 
 
-def _fake_solver(threshold, calls):
+def _fake_solver(threshold, calls, leak_threshold=None):
     def fake(problem, force, warm_start=None):
         calls.append((force, warm_start))
-        return _FakeFit(force, threshold)
+        return _FakeFit(force, threshold, leak_threshold)
     return fake
+
+
+@pytest.mark.parametrize("threshold, leak_threshold", [(27.9, 6.2), (27.9, 19.0), (1e9, 12.3), (9.0, 1.0)])
+def test_leak_answer_brackets_its_threshold_and_keeps_the_strict_answer(monkeypatch, threshold, leak_threshold):
+    """Seal from F* (1e9: never), acceptable leak from F_L <= F*: the leak answer lies within the
+    tolerance above F_L and its lower bound below F_L; the strict answer is the one without leak search."""
+    calls = []
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(threshold, calls, leak_threshold))
+    opts = SearchOptions(start=10.0, abs_tol=0.25, rel_tol=0.0, max_solves=30)
+    res = least_seal_force(None, opts)
+    # the same search where the leak turns acceptable only where it seals: the strict answer must not move
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(threshold, []))
+    ref = least_seal_force(None, opts)
+    assert (res.seal_force, res.lower_bound, res.status) == (ref.seal_force, ref.lower_bound, ref.status)
+    if leak_threshold <= opts.minimum:
+        assert res.leak_status == "acceptable-at-minimum" and res.leak_force == opts.minimum
+    else:
+        assert res.leak_status == "acceptable"
+        assert leak_threshold <= res.leak_force <= leak_threshold + 0.25
+        assert res.leak_lower_bound < leak_threshold
+    assert res.leak_fit.force == res.leak_force and res.leak_fit.leak_acceptable
+    assert res.n_solves == len(calls) == ref.n_solves + res.leak_solves
+    assert res.as_dict()["least_acceptable_leak_force_n"] == res.leak_force
+
+
+def test_leak_never_acceptable(monkeypatch):
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(1e9, [], 1e9))
+    res = least_seal_force(None, SearchOptions(start=10.0, maximum=60.0))
+    assert res.leak_force is None and res.leak_status == "not-acceptable" and res.leak_lower_bound == 60.0
+    assert res.leak_solves == 0
 
 
 @pytest.mark.parametrize("threshold", [3.3, 7.31, 10.0, 27.9])
@@ -119,3 +152,17 @@ def test_real_search_is_consistent():
         assert c.peak_pressure_kpa >= c.mean_pressure_kpa > 0
     assert res.as_dict()["n_solves"] == res.n_solves
     assert set(forces) >= {8.0}
+
+
+def test_non_monotone_leak_is_reported_as_such(monkeypatch):
+    """Acceptable between 5 and 20 N only (a mask that pitches open at high force): the answer is the
+    smallest acceptable solved force, flagged "non-monotone"; an acceptable fit followed by an
+    unacceptable larger one never counts as 'acceptable from here on'."""
+    def fake(problem, force, warm_start=None):
+        r = _FakeFit(force, 1e9)
+        r.leak_acceptable = 5.0 <= force <= 20.0
+        return r
+
+    monkeypatch.setattr(search_mod, "problem_fit", fake)
+    res = least_seal_force(None, SearchOptions(start=10.0, maximum=60.0))
+    assert res.leak_status == "non-monotone" and res.leak_force == 10.0 and res.leak_solves == 0

@@ -86,3 +86,18 @@ def test_bad_study_input(tmp_path, faces):
     with pytest.raises(ParameterError):
         run_study(faces, ["nasal-XXL"], tmp_path / "o")
     assert StudyOptions().maximum <= 200
+
+
+def test_a_store_from_before_the_leak_column_is_upgraded(tmp_path):
+    path = tmp_path / "cases.sqlite"
+    with sqlite3.connect(path) as db:  # the schema before least_acceptable_leak_force_n
+        db.execute("""CREATE TABLE cases (face TEXT NOT NULL, mask TEXT NOT NULL, status TEXT NOT NULL, sealed INTEGER,
+            least_seal_force_n REAL, peak_pressure_kpa REAL, mean_pressure_kpa REAL, contact_area_cm2 REAL,
+            n_solves INTEGER, seconds REAL, error TEXT, result_json TEXT, finished_at REAL, PRIMARY KEY (face, mask))""")
+        db.execute("INSERT INTO cases (face, mask, status) VALUES ('f', 'nasal-S', 'no-seal')")
+    store = CaseStore(path)
+    store.put({"face": "f", "mask": "nasal-M", "status": "sealed", "least_acceptable_leak_force_n": 7.5})
+    rows = {r["mask"]: r for r in store.rows()}
+    store.close()
+    assert rows["nasal-M"]["least_acceptable_leak_force_n"] == 7.5
+    assert rows["nasal-S"]["least_acceptable_leak_force_n"] is None and rows["nasal-S"]["status"] == "no-seal"

@@ -13,6 +13,8 @@ app = typer.Typer(help="Mask fit: does a mask seal on a face, where does it leak
 
 #: = headsim.mask.fit.SKIN_SILICONE_FRICTION (kept here so that the CLI starts without importing the solver)
 SKIN_SILICONE_FRICTION = 0.5
+#: = headsim.mask.leak.LARGE_LEAK_LPM (ResMed's large-leak threshold, L/min; same reason)
+LARGE_LEAK_LPM = 24.0
 
 def _load_face(face: Optional[Path], units: str):
     from headsim.data import face_path
@@ -57,11 +59,12 @@ def _load_mask(spec: str, mask_units: str, rigid_plane: Optional[str], thickness
 
 
 def _options(layers: int, crop_mm: float, therapy_pa: float, threshold_kpa: float, placement: str,
-             friction: float = 0.0):
+             friction: float = 0.0, leak_threshold: float = LARGE_LEAK_LPM):
     from headsim.mask.fit import FitOptions
 
     return FitOptions(tissue_layers=layers, crop_margin=crop_mm * 1e-3, therapy_pressure=therapy_pa,
-                      pressure_threshold=threshold_kpa * 1e3, placement=placement, friction=friction)
+                      pressure_threshold=threshold_kpa * 1e3, placement=placement, friction=friction,
+                      leak_threshold_lpm=leak_threshold)
 
 
 FACE = typer.Option(None, "--face", help="face surface (.obj/.stl/.ply…); default: the bundled neutral face")
@@ -80,6 +83,8 @@ THRESH = typer.Option(4.266, "--threshold", help="pressure-injury threshold, kPa
 FRICTION = typer.Option(0.0, "--friction", help="Coulomb coefficient skin-cushion, nonlinear mode (default 0: "
                         f"frictionless; silicone on dry skin ~{SKIN_SILICONE_FRICTION:g}, Derler & Gerhardt 2012; the "
                         "solve may not converge)")
+LEAK = typer.Option(LARGE_LEAK_LPM, "--leak-threshold", help="largest unintentional leak judged clinically "
+                    "acceptable, L/min (default: the large-leak flag of ResMed CPAP devices)")
 MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM contact) or condensed (linear face "
                     "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
 
@@ -106,13 +111,13 @@ def list_masks() -> None:
 
 
 def _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop, edge, therapy,
-             threshold, friction=0.0):
+             threshold, friction=0.0, leak_threshold=LARGE_LEAK_LPM):
     from headsim.mask.fit import prepare_fit
 
     mesh = _load_face(face, units)
     m = _load_mask(mask, mask_units, rigid_plane, thickness, kind, edge)
     typer.echo(f"face {mesh.name}: {mesh.n_vertices} vertices; mask {m.name}")
-    problem = prepare_fit(mesh, m, _options(layers, crop, therapy, threshold, placement, friction))
+    problem = prepare_fit(mesh, m, _options(layers, crop, therapy, threshold, placement, friction, leak_threshold))
     d = problem.describe()
     typer.echo(f"model: {d['model_vertices']} vertices, {d['model_tets']} tets "
                f"({d['cropped_skin_vertices']} skin vertices in the mask region)")
@@ -126,8 +131,9 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
         force: float = typer.Option(15.0, "--force", help="strap force, N"),
         out: Path = typer.Option(..., "--out", help="output folder (report.html, result.json, PNG, VTU/PLY)"),
         layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, therapy_pressure: float = THERAPY,
-        threshold: float = THRESH, mode: str = MODE, friction: float = FRICTION) -> None:
-    """Press MASK onto FACE with strap force FORCE (N); write pressures, seal and leaks."""
+        threshold: float = THRESH, mode: str = MODE, friction: float = FRICTION,
+        leak_threshold: float = LEAK) -> None:
+    """Press MASK onto FACE with strap force FORCE (N); write pressures, seal, leaks and the leak flow."""
     from headsim.cli._common import atomic_output_dir
     from headsim.mask.fit import check_force, problem_fit
     from headsim.mask.report import write_fit_report
@@ -135,7 +141,7 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
     check_force(force)
     _check_mode(mode, friction)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
-                       mask_edge, therapy_pressure, threshold, friction)
+                       mask_edge, therapy_pressure, threshold, friction, leak_threshold)
     with typer.progressbar(length=1, label=f"fit at {force:g} N ({mode})") as bar:
         if mode == "condensed":
             from headsim.mask.condensed import condense_fit, condensed_fit
@@ -149,7 +155,13 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
     s = result.summary
     typer.echo(f"{'SEALED' if result.sealed else 'LEAKS'} at {force:g} N: contact force {result.contact_force:.3f} N, "
                f"area {s.contact_area_cm2:.2f} cm², peak {s.peak_pressure / 1e3:.1f} kPa, mean "
-               f"{s.mean_pressure / 1e3:.1f} kPa -> {out}/report.html")
+               f"{s.mean_pressure / 1e3:.1f} kPa; {_leak_text(result)} -> {out}/report.html")
+
+
+def _leak_text(result) -> str:
+    leak = result.leak
+    return (f"leak {leak.flow_lpm:.2f} L/min ({'acceptable' if leak.acceptable else 'too large'}, "
+            f"threshold {leak.threshold_lpm:g} L/min; estimate)")
 
 
 def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float, mode: str = "nonlinear"):
@@ -172,13 +184,22 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
         write_fit_report(tmp, problem, result.fit, result)
     if result.seal_force is None:
         typer.echo(f"{problem.mask.name} does not seal up to {maximum:g} N ({result.n_solves} fits, "
-                   f"{result.seconds:.1f} s) -> {out}/report.html")
+                   f"{result.seconds:.1f} s; at {result.fit.force:g} N: {_leak_text(result.fit)})")
     else:
         s = result.fit.summary
         typer.echo(f"least sealing force of {problem.mask.name}: {result.seal_force:.2f} N "
                    f"(largest leaking: {result.lower_bound if result.lower_bound is None else round(result.lower_bound, 2)} N; "
                    f"{result.n_solves} fits, {result.seconds:.1f} s); at that force: area {s.contact_area_cm2:.2f} cm², "
-                   f"peak {s.peak_pressure / 1e3:.1f} kPa, mean {s.mean_pressure / 1e3:.1f} kPa -> {out}/report.html")
+                   f"peak {s.peak_pressure / 1e3:.1f} kPa, mean {s.mean_pressure / 1e3:.1f} kPa")
+    thr = problem.options.leak_threshold_lpm
+    if result.leak_force is None:
+        typer.echo(f"least force with an acceptable leak (<= {thr:g} L/min): none up to {result.leak_lower_bound:g} N "
+                   f"-> {out}/report.html")
+    else:
+        lo = "-" if result.leak_lower_bound is None else f"{result.leak_lower_bound:.2f} N"
+        typer.echo(f"least force with an acceptable leak (<= {thr:g} L/min, estimate): {result.leak_force:.2f} N "
+                   f"(largest with more leak: {lo}; leak at {result.leak_force:.2f} N: {result.leak_fit.leak_flow_lpm:.2f} L/min; "
+                   f"{result.leak_solves} extra fits) -> {out}/report.html")
     return result
 
 
@@ -192,14 +213,14 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
                out: Path = typer.Option(..., "--out", help="output folder"),
                layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE,
                therapy_pressure: float = THERAPY, threshold: float = THRESH, mode: str = MODE,
-               friction: float = FRICTION) -> None:
+               friction: float = FRICTION, leak_threshold: float = LEAK) -> None:
     """Search the least strap force with which MASK seals on FACE (bracketing + bisection, warm-started)."""
     from headsim.mask.search import SearchOptions
 
     SearchOptions(start=start, maximum=maximum, abs_tol=tol)  # validate before the set-up work
     _check_mode(mode, friction)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
-                       mask_edge, therapy_pressure, threshold, friction)
+                       mask_edge, therapy_pressure, threshold, friction, leak_threshold)
     run_seal_force(problem, out, start, maximum, tol, mode)
 
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from headsim.errors import ConvergenceError, ParameterError
-from headsim.mask.fit import _ROT_RADIUS, FitProblem, FitResult, FitState, check_force
+from headsim.mask.fit import _ROT_RADIUS, FitProblem, FitResult, FitState, check_force, fit_leak
 from headsim.mask.pressure import summarize_pressure
 from headsim.mask.seal import analyse_seal
 
@@ -183,4 +183,4 @@ def condensed_fit(cf: CondensedFit, force: float, *, warm_active: np.ndarray | N
         deformed_mask=deformed_mask, mask_displacement=float(u[0]),
         mask_rotation_deg=tuple(np.degrees(u[1:] / _ROT_RADIUS).tolist()),
         state=FitState(x, tuple(u.tolist()), force), newton_iterations=res.iterations, contact_updates=0,
-        seconds=time.perf_counter() - t0, mode="condensed")
+        seconds=time.perf_counter() - t0, mode="condensed", leak=fit_leak(p, deformed_face, deformed_mask, pressure))

@@ -60,6 +60,9 @@ def result_dict(problem: FitProblem, fit: FitResult, search: SearchResult | None
         "landmarks_m": problem.landmarks.as_dict(),
         "therapy_pressure_pa": problem.options.therapy_pressure,
         "pressure_threshold_kpa": problem.options.pressure_threshold / 1e3,
+        "leak_flow_lpm": fit.leak_flow_lpm,
+        "leak_acceptable": fit.leak_acceptable,
+        "leak_threshold_lpm": problem.options.leak_threshold_lpm,
         "fit": fit.as_dict(),
         "sanity_note": SANITY_NOTE,
     }
@@ -78,12 +81,24 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
             rows.append(("least sealing force", f"{search.seal_force:.2f} N (largest leaking force: "
                          f"{'-' if search.lower_bound is None else f'{search.lower_bound:.2f} N'}; "
                          f"tolerance max({search.options.abs_tol:g} N, {100 * search.options.rel_tol:g} %))"))
+        thr = problem.options.leak_threshold_lpm
+        if search.leak_status is None:
+            pass
+        elif search.leak_force is None:
+            rows.append((f"least force with leak <= {thr:g} L/min",
+                         f"none up to {search.leak_lower_bound:g} N (leak above the threshold at every force solved)"))
+        else:
+            lo = "-" if search.leak_lower_bound is None else f"{search.leak_lower_bound:.2f} N"
+            rows.append((f"least force with leak <= {thr:g} L/min",
+                         f"{search.leak_force:.2f} N (largest with more leak: {lo}; leak at that force "
+                         f"{search.leak_fit.leak_flow_lpm:.2f} L/min; {search.leak_solves} extra fit(s))"))
         rows.append(("fits in the search", f"{search.n_solves} ({search.seconds:.1f} s)"))
     rows += [
         ("strap force", f"{fit.force:.2f} N"),
         ("total contact force (along the strap)", f"{fit.contact_force:.3f} N (balance error {100 * fit.balance_error:.3g} %)"),
         ("bone support force", f"{fit.support_force:.3f} N"),
         ("sealed", "yes" if fit.sealed else f"no ({len(fit.seal.leak_paths)} leak path(s))"),
+        *_leak_rows(fit),
         ("therapy pressure", f"{problem.options.therapy_pressure:.1f} Pa"),
         ("contact area", f"{s.contact_area_cm2:.2f} cm²"),
         ("peak contact pressure", f"{s.peak_pressure / 1e3:.2f} kPa"),
@@ -106,6 +121,23 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
          if getattr(fit, "mode", "nonlinear") == "condensed" else
          "nonlinear FEM contact (finite strain, penalty on lagged cushion planes)"),
     ]
+    return rows
+
+
+def _leak_rows(fit: FitResult, max_channels: int = 8) -> list[tuple[str, str]]:
+    leak = fit.leak
+    if leak is None:
+        return []
+    verdict = "acceptable" if leak.acceptable else "too large"
+    rows = [("leak flow at the therapy pressure (estimate)",
+             f"{leak.flow_lpm:.3g} L/min, {verdict} (threshold {leak.threshold_lpm:g} L/min; viscous film flow "
+             f"{leak.viscous_lpm:.3g} L/min, orifice bound {leak.orifice_lpm:.3g} L/min)")]
+    for i, c in enumerate(leak.channels[:max_channels]):
+        pt = ", ".join(f"{x * 1e3:.1f}" for x in c.position)
+        rows.append((f"leak channel {i + 1}",
+                     f"at ({pt}) mm: {c.flow_lpm:.3g} L/min, flow area {c.area * 1e6:.3g} mm², widest gap "
+                     f"{c.max_aperture * 1e6:.0f} µm, Re {c.max_reynolds:.3g}"
+                     + ("" if c.viscous_valid else " (inertial: orifice-limited estimate)")))
     return rows
 
 
@@ -138,6 +170,14 @@ def pressure_figure(problem: FitProblem, fit: FitResult):
         c = lp.crossing_point * mm
         fig.add_trace(go.Scatter3d(x=[c[0]], y=[c[1]], z=[c[2]], mode="markers", name=f"leak {i + 1}",
                                    marker=dict(size=7, color="red", symbol="x")))
+    if fit.leak is not None and fit.leak.channels:
+        ch = fit.leak.channels
+        v = np.array([c.position for c in ch]) * mm
+        q = np.array([c.flow_lpm for c in ch])
+        size = 5 + 15 * np.sqrt(q / max(q.max(), 1e-12))
+        fig.add_trace(go.Scatter3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], mode="markers",
+                                   name="leak channels (size ~ flow)", text=[f"{x:.3g} L/min" for x in q],
+                                   marker=dict(size=size, color="orange", symbol="diamond")))
     return fig
 
 
@@ -147,18 +187,28 @@ def curves_figure(search: SearchResult):
     from plotly.subplots import make_subplots
 
     f = [c.force for c in search.curve]
-    fig = make_subplots(rows=1, cols=2, subplot_titles=("contact area", "peak contact pressure"))
+    fig = make_subplots(rows=1, cols=3, subplot_titles=("contact area", "peak contact pressure", "leak flow"))
     sym = ["circle" if c.sealed else "x" for c in search.curve]
     fig.add_trace(go.Scatter(x=f, y=[c.contact_area_cm2 for c in search.curve], mode="lines+markers",
                              marker=dict(symbol=sym, size=9), name="contact area (cm²)"), row=1, col=1)
     fig.add_trace(go.Scatter(x=f, y=[c.peak_pressure_kpa for c in search.curve], mode="lines+markers",
                              marker=dict(symbol=sym, size=9), name="peak pressure (kPa)"), row=1, col=2)
+    leak = [c.leak_flow_lpm for c in search.curve]
+    if all(q is not None for q in leak):
+        fig.add_trace(go.Scatter(x=f, y=leak, mode="lines+markers", marker=dict(symbol=sym, size=9),
+                                 name="leak flow (L/min)"), row=1, col=3)
+        thr = getattr(search.fit.leak, "threshold_lpm", None) if getattr(search.fit, "leak", None) else None
+        if thr is not None:
+            fig.add_hline(y=thr, line_dash="dot", line_color="red", row=1, col=3)
     if search.seal_force is not None:
-        for col in (1, 2):
+        for col in (1, 2, 3):
             fig.add_vline(x=search.seal_force, line_dash="dash", line_color="green", row=1, col=col)
+    if search.leak_force is not None:
+        fig.add_vline(x=search.leak_force, line_dash="dot", line_color="orange", row=1, col=3)
     fig.update_xaxes(title_text="strap force (N)")
     fig.update_yaxes(title_text="cm²", row=1, col=1)
     fig.update_yaxes(title_text="kPa", row=1, col=2)
+    fig.update_yaxes(title_text="L/min", row=1, col=3)
     fig.update_layout(height=380, margin=dict(l=40, r=10, t=40, b=40))
     return fig
 
@@ -177,12 +227,16 @@ def _png(out: Path, problem: FitProblem, fit: FitResult, search: SearchResult | 
              title=f"{problem.mask.name}, {fit.force:.1f} N: contact pressure"),
     ], colorbar_label="kPa", cmap="viridis", symmetric=False)]
     if search is not None and search.curve:
-        fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
+        fig, ax = plt.subplots(1, 3, figsize=(13, 3.5))
         f = [c.force for c in search.curve]
         ax[0].plot(f, [c.contact_area_cm2 for c in search.curve], "o-")
         ax[0].set_ylabel("contact area (cm²)")
         ax[1].plot(f, [c.peak_pressure_kpa for c in search.curve], "o-")
         ax[1].set_ylabel("peak pressure (kPa)")
+        if all(c.leak_flow_lpm is not None for c in search.curve):
+            ax[2].plot(f, [c.leak_flow_lpm for c in search.curve], "o-")
+            ax[2].axhline(problem.options.leak_threshold_lpm, ls=":", color="r")
+        ax[2].set_ylabel("leak flow (L/min)")
         for a in ax:
             a.set_xlabel("strap force (N)")
             if search.seal_force is not None:
@@ -214,12 +268,18 @@ def write_fit_report(out_dir: str | Path, problem: FitProblem, fit: FitResult,
     _png(out, problem, fit, search)
     figures = [("Contact pressure on the face (kPa), seal loop and leaks", pressure_figure(problem, fit))]
     if search is not None and search.curve:
-        figures.append(("Strap force vs contact area and peak pressure (o sealed, x leaks)", curves_figure(search)))
+        figures.append(("Strap force vs contact area, peak pressure and leak flow (o sealed, x leaks)",
+                        curves_figure(search)))
     title = f"headsim mask fit: {problem.mask.name}"
     notes = [SANITY_NOTE,
              "Model: quasi-static FEM contact (stable neo-Hookean tissue over fixed bone, FEM cushion, rigid shell on "
              "the strap force, penalty contact); seal = contact pressure above the therapy pressure closing a loop "
-             "around the airway."]
+             "around the airway.",
+             "Leak flow: an estimate -- steady viscous (lubrication) air flow at the therapy pressure in the gap between "
+             "skin and cushion (closest-point gap; closed where the contact pressure exceeds the therapy pressure, a "
+             "skin-roughness gap where the skin touches more lightly), limited per channel by the Bernoulli orifice flow "
+             "of its narrowest cross-section; judged against the large-leak threshold of CPAP devices (ResMed: 24 L/min "
+             "unintentional leak). Orange diamonds mark the channels of that narrowest cross-section."]
     write_html_report(out / "report.html", title=title, figures=figures, numbers=_numbers(problem, fit, search),
                       notes=notes)
     return out

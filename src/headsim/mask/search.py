@@ -17,6 +17,21 @@ interval is within the tolerance; otherwise a fit that does not converge (after 
 search with status "solve-failed" and the bracket found so far, reported as such. Every fit is warm-started from the converged fit of the nearest force already solved
 (:class:`headsim.mask.fit.FitState`); a failed warm start falls back to a cold one. Every solved force
 also gives a point of the force -> contact area and force -> peak pressure curves.
+
+**Least force with an acceptable leak** (beside the strict answer, which stays as it is): every fit
+carries a leak-flow estimate (:mod:`headsim.mask.leak`) and the judgement "leak <= threshold"
+(:attr:`FitResult.leak_acceptable`), assumed monotone in the force like the seal. After the strict
+search, the solved forces are reused: the smallest acceptable one and the largest unacceptable
+one below it form the bracket -- the smallest force from which every solved force is acceptable,
+so an isolated acceptable fit below an unacceptable one does not count (the leak is not always
+monotone: the mask pitches on its strap) -- halving down from it, to ``minimum``, when no solved
+force below it is unacceptable, bisected to the same tolerance, with at most ``max_solves``
+further fits. When the largest solved force is unacceptable but a smaller one is not, the answer
+is that smaller force, unrefined, with status "non-monotone".
+A sealed fit leaks 0, so the answer is at most the strict seal force. When no solved force is
+acceptable the answer is None ("leak above the threshold up to the largest force solved"); no fit
+above the strict search's range is tried. Cost on the demo (nonlinear, 10-30 N, 1 N): see
+:mod:`headsim.mask.fit` "Leak flow".
 """
 
 from __future__ import annotations
@@ -61,7 +76,7 @@ class SearchOptions:
 
 @dataclass(frozen=True, eq=False)
 class CurvePoint:
-    """One solved force: N, cm^2, kPa, kPa, bool, s."""
+    """One solved force: N, cm^2, kPa, kPa, cm^2, bool, s, L/min, bool."""
 
     force: float
     contact_area_cm2: float
@@ -70,6 +85,8 @@ class CurvePoint:
     area_above_threshold_cm2: float
     sealed: bool
     seconds: float
+    leak_flow_lpm: float | None = None
+    leak_acceptable: bool | None = None
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -90,6 +107,13 @@ class SearchResult:
         "solve-failed" (fits after the first did not converge and no seal was found below them; the
         search stops with the bracket so far)
     failures : messages of the fits that did not converge
+    leak_force : N, the least force whose leak is acceptable (module doc), or None
+    leak_lower_bound : N, the largest force found with an unacceptable leak (None if none below)
+    leak_status : "acceptable", "acceptable-at-minimum", "not-acceptable", "non-monotone" (acceptable at
+        some solved force but not at the largest: leak_force is the smallest acceptable one, unrefined),
+        "max-solves", "solve-failed"
+    leak_solves : fits added for the leak answer (beyond the strict search's)
+    leak_fit : FitResult at ``leak_force`` (None when there is none)
     """
 
     seal_force: float | None
@@ -102,10 +126,21 @@ class SearchResult:
     status: str
     options: SearchOptions = field(default_factory=SearchOptions)
     failures: list = field(default_factory=list)
+    leak_force: float | None = None
+    leak_lower_bound: float | None = None
+    leak_status: str | None = None
+    leak_solves: int = 0
+    leak_fit: FitResult | None = None
 
     def as_dict(self) -> dict:
+        leak = getattr(self.fit, "leak", None)
         return {
             "least_seal_force_n": self.seal_force,
+            "least_acceptable_leak_force_n": self.leak_force,
+            "largest_unacceptable_leak_force_n": self.leak_lower_bound,
+            "leak_search_status": self.leak_status,
+            "leak_extra_solves": self.leak_solves,
+            "leak_threshold_lpm": None if leak is None else leak.threshold_lpm,
             "largest_leaking_force_n": self.lower_bound,
             "bracket_width_n": self.tolerance,
             "status": self.status,
@@ -159,7 +194,8 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
         fits[f] = r
         if progress is not None:
             progress(len(fits), options.max_solves,
-                     f"{f:.2f} N: {'sealed' if r.sealed else 'leaks'}, peak {r.summary.peak_pressure / 1e3:.1f} kPa")
+                     f"{f:.2f} N: {'sealed' if r.sealed else 'leaks'}, peak {r.summary.peak_pressure / 1e3:.1f} kPa"
+                     + ("" if r.leak_flow_lpm is None else f", leak {r.leak_flow_lpm:.2f} L/min"))
         return r
 
     lo = hi = None
@@ -167,20 +203,8 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
     r = solve(f)
     status = "sealed"
     if r.sealed:
-        hi = f
-        while len(fits) < options.max_solves:
-            f = max(f / 2.0, options.minimum)
-            r = solve(f)
-            if r is None:
-                status = "solve-failed"
-                break
-            if not r.sealed:
-                lo = f
-                break
-            hi = f
-            if f <= options.minimum:
-                status = "seals-at-minimum"
-                break
+        lo, hi, stop = _halve_down(solve, lambda r: r.sealed, f, options, lambda: len(fits) < options.max_solves)
+        status = {"at-minimum": "seals-at-minimum", "solve-failed": "solve-failed"}.get(stop, status)
     else:
         lo = f
         ceiling = None        # smallest force whose solve failed while bracketing upwards
@@ -209,26 +233,83 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
             if hi is None:
                 status = "no-seal" if f >= options.maximum else "max-solves"
     if hi is not None and lo is not None and status == "sealed":
-        while hi - lo > max(options.abs_tol, options.rel_tol * hi):
-            if len(fits) >= options.max_solves:
-                status = "max-solves"
-                break
-            mid = 0.5 * (lo + hi)
-            r = solve(mid)
-            if r is None:
-                status = "solve-failed"
-                break
-            if r.sealed:
-                hi = mid
-            else:
-                lo = mid
+        lo, hi, stop = _bisect(solve, lambda r: r.sealed, lo, hi, options, lambda: len(fits) < options.max_solves)
+        status = stop or status
+    n_strict = len(fits) + len(failed)
+    leak_hi, leak_lo, leak_status = _leak_bracket(
+        solve, fits, options, lambda: len(fits) + len(failed) - n_strict < options.max_solves)
     curve = [CurvePoint(f, r.summary.contact_area_cm2, r.summary.peak_pressure / 1e3,
-                        r.summary.mean_pressure / 1e3, r.summary.area_above_threshold_cm2, r.sealed, r.seconds)
+                        r.summary.mean_pressure / 1e3, r.summary.area_above_threshold_cm2, r.sealed, r.seconds,
+                        r.leak_flow_lpm, r.leak_acceptable)
              for f, r in sorted(fits.items())]
     n = len(fits) + len(failed)
+    leak = dict(leak_force=leak_hi, leak_lower_bound=leak_lo, leak_status=leak_status, leak_solves=n - n_strict,
+                leak_fit=None if leak_hi is None else fits[leak_hi])
     if hi is None:
         best = fits[max(fits)]
         return SearchResult(None, lo, None, best, curve, n, time.perf_counter() - t0,
-                            status if status != "sealed" else "no-seal", options, failed)
+                            status if status != "sealed" else "no-seal", options, failed, **leak)
     width = None if lo is None else hi - lo
-    return SearchResult(hi, lo, width, fits[hi], curve, n, time.perf_counter() - t0, status, options, failed)
+    return SearchResult(hi, lo, width, fits[hi], curve, n, time.perf_counter() - t0, status, options, failed, **leak)
+
+
+def _halve_down(solve, accept, hi: float, options: SearchOptions, budget_left):
+    """From an accepted force ``hi``, halve (down to ``minimum``) until a force is rejected:
+    (rejected force or None, smallest accepted force, None or "at-minimum" | "max-solves" | "solve-failed")."""
+    while budget_left():
+        if hi <= options.minimum:
+            return None, hi, "at-minimum"
+        f = max(hi / 2.0, options.minimum)
+        r = solve(f)
+        if r is None:
+            return None, hi, "solve-failed"
+        if not accept(r):
+            return f, hi, None
+        hi = f
+    return None, hi, "max-solves"
+
+
+def _bisect(solve, accept, lo: float, hi: float, options: SearchOptions, budget_left):
+    """Bisect [lo rejected, hi accepted] to max(abs_tol, rel_tol hi): (lo, hi, None) or, stopped early,
+    (lo, hi, "max-solves" | "solve-failed")."""
+    while hi - lo > max(options.abs_tol, options.rel_tol * hi):
+        if not budget_left():
+            return lo, hi, "max-solves"
+        mid = 0.5 * (lo + hi)
+        r = solve(mid)
+        if r is None:
+            return lo, hi, "solve-failed"
+        if accept(r):
+            hi = mid
+        else:
+            lo = mid
+    return lo, hi, None
+
+
+def _leak_bracket(solve, fits: dict, options: SearchOptions, budget_left):
+    """Least force with an acceptable leak from the solved ``fits``, refined (module doc):
+    (force or None, largest unacceptable force below it or None, status)."""
+    def accept(r):
+        return bool(r.leak_acceptable)
+
+    forces = sorted(fits)
+    ok = [accept(fits[f]) for f in forces]
+    if not any(ok):
+        return None, forces[-1], "not-acceptable"
+    if not ok[-1]:
+        # acceptable somewhere but not at the largest force solved: the leak is not monotone here
+        first = forces[ok.index(True)]
+        return first, max([f for f in forces if f < first], default=None), "non-monotone"
+    # the smallest force from which every solved force is acceptable
+    k = len(ok) - 1
+    while k > 0 and ok[k - 1]:
+        k -= 1
+    hi = forces[k]
+    below = [f for f in fits if f < hi]
+    lo = max(below) if below else None
+    if lo is None:
+        lo, hi, stop = _halve_down(solve, accept, hi, options, budget_left)
+        if lo is None:
+            return hi, None, {"at-minimum": "acceptable-at-minimum"}.get(stop, stop)
+    lo, hi, stop = _bisect(solve, accept, lo, hi, options, budget_left)
+    return hi, lo, stop or "acceptable"

@@ -29,6 +29,7 @@ from headsim.solvers.massspring import (  # noqa: E402
 from headsim.solvers.materials import Material, spring_stiffness_from_young  # noqa: E402
 from headsim.solvers.newton import NewtonOptions, minimize_newton  # noqa: E402
 from headsim.solvers.state import BodyState  # noqa: E402
+from headsim.solvers.thin_film import ThinFilmFlow, constrictions, orifice_flow, solve_thin_film  # noqa: E402
 
 __all__ = [
     "BodyState", "DriverAttachment", "ExitPoints", "ExplicitEuler", "FemModel", "ImplicitEuler", "MassSpringModel", "Material",
@@ -36,4 +37,5 @@ __all__ = [
     "SeedCollisionForce", "SphereObstacle", "SymplecticEuler", "combine_mass_spring", "critical_time_step",
     "exit_points", "fem_from_tetmesh", "mass_spring_from_tetmesh", "minimize_newton", "simulate",
     "solve_quasi_static", "spring_stiffness_from_young", "surface_vertex_areas",
+    "ThinFilmFlow", "constrictions", "orifice_flow", "solve_thin_film",
 ]
