@@ -47,6 +47,7 @@ __all__ = ["SCENES", "FRICTION_MODES", "DrapeScene", "DrapeResult", "friction_la
 SCENES = ("sphere-horizontal", "sphere-helical", "plane", "terrain", "head")
 FRICTION_MODES = ("aniso", "iso", "none")
 FIBRE_DIAMETER = 70e-6  # m, Sobottka §8.6 ("durchgängig ein Querschnitt von 70 µm")
+RINGLET_SPACING = 1.5 * FIBRE_DIAMETER  # m, lattice spacing of the helical strands (see build_drape_scene)
 
 
 def friction_law(mode: str) -> FrictionLaw:
@@ -93,21 +94,52 @@ class DrapeResult:
     seconds: dict = field(default_factory=dict)  # summed per-phase wall time, s
 
 
-def _helix(n_nodes, length, radius, pitch_height, phase, axis_point, vertical=True):
-    """A helix polyline of arc length ``length`` (m) around a vertical (y) or horizontal (x) axis."""
-    turns_len = np.hypot(2 * np.pi * radius, pitch_height)
-    s = np.linspace(0, length, n_nodes)
-    ang = phase + 2 * np.pi * s / turns_len
-    h = pitch_height * s / turns_len
-    if vertical:
-        return np.stack([axis_point[0] + radius * np.cos(ang), axis_point[1] - h, axis_point[2] + radius * np.sin(ang)], 1)
-    return np.stack([axis_point[0] + h, axis_point[1] + radius * np.cos(ang), axis_point[2] + radius * np.sin(ang)], 1)
+def _hex_lattice(n: int, spacing: float) -> np.ndarray:
+    """(n, 2) points of a hexagonal lattice of ``spacing`` (m), the n closest to the origin (a disc)."""
+    k = int(np.ceil(np.sqrt(n))) + 2
+    ii, jj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1), indexing="ij")
+    lat = np.stack([ii + 0.5 * jj, jj * np.sqrt(3) / 2], -1).reshape(-1, 2) * spacing
+    return lat[np.argsort(np.hypot(lat[:, 0], lat[:, 1]), kind="stable")[:n]]
 
 
-def _disc(n, radius, rng):
-    r = radius * np.sqrt(rng.uniform(size=n))
-    t = rng.uniform(0, 2 * np.pi, n)
-    return np.stack([r * np.cos(t), r * np.sin(t)], 1)
+def _ringlet(n_fibres: int, n_segments: int, length: float, radius: float, pitch: float, top,
+             spacing: float, vertical: bool = True) -> np.ndarray:
+    """A helical strand (ringlet): (n_fibres, n_segments + 1, 3) node polylines, m.
+
+    The strand's centreline c(s) is a helix of ``radius`` and ``pitch`` (rise per turn) around a
+    vertical (−y) or horizontal (+x) axis through ``top``, arc length ``length``. The fibres sit on a
+    hexagonal lattice of ``spacing`` in the centreline's normal plane, spanned by the principal
+    normal (−e_r for a helix) and the binormal B (Frenet frame; it turns about the tangent with the
+    helix torsion, which leaves the in-plane distances unchanged), so fibre j is c(s) + a_j e_r(s) +
+    b_j B(s). All fibres are sampled at the same centreline arc lengths s_k: neighbouring fibres then
+    stay one spacing apart along their whole length, chords included (the chord of a 3 mm segment on
+    a 12 mm helix cuts the arc by ℓ²/(8ρ) ≈ 94 µm, more than a diameter, so fibres sampled at their
+    own arc lengths would start interpenetrating). The price: a fibre's length differs from
+    ``length`` by the radial offset, by the factor ≈ 1 + κ a_j (κ = ρ/(ρ² + c²) the curvature,
+    c = pitch/2π), a few per cent at the strand's edge."""
+    turn = np.hypot(2 * np.pi * radius, pitch)  # arc length of one turn
+    kappa = radius / (radius**2 + (pitch / (2 * np.pi)) ** 2)
+    # chords of neighbouring fibres (same centreline arc lengths) are cos(ℓκ/2) times closer than the nodes
+    clear = spacing * np.cos(0.5 * min(length / n_segments * kappa, np.pi))
+    if not clear > FIBRE_DIAMETER:
+        raise ParameterError(f"fibre spacing {spacing * 1e6:.1f} µm leaves chords {clear * 1e6:.1f} µm apart at "
+                             f"{n_segments} segments on a {radius * 1e3:g} mm helix, not more than the fibre "
+                             f"diameter {FIBRE_DIAMETER * 1e6:g} µm: the fibres would start interpenetrating")
+    lat = _hex_lattice(n_fibres, spacing)
+    s = np.linspace(0.0, length, n_segments + 1)
+    ang = 2 * np.pi * s / turn
+    rise = pitch * s / turn
+    # local coordinates with the helix axis along −z': centreline, radial e_r, tangent t, binormal t × e_r
+    c = np.stack([radius * np.cos(ang), radius * np.sin(ang), -rise], 1)
+    er = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)
+    t = np.stack([-2 * np.pi * radius * np.sin(ang), 2 * np.pi * radius * np.cos(ang), np.full_like(ang, -pitch)], 1)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    b = np.cross(t, er)
+    local = c[None] + lat[:, None, 0:1] * er[None] + lat[:, None, 1:2] * b[None]
+    x0, y0, z0 = top
+    if vertical:  # axis along −y: local (x', y', z') → world (x', z', y')
+        return np.stack([x0 + local[..., 0], y0 + local[..., 2], z0 + local[..., 1]], -1)
+    return np.stack([x0 - local[..., 2], y0 + local[..., 0], z0 + local[..., 1]], -1)
 
 
 def _terrain_field(spacing=2e-3):
@@ -125,13 +157,22 @@ def _terrain_field(spacing=2e-3):
 
 def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int | None = None,
                       segments: int | None = None, length: float = 0.30, dt: float = 1e-3,
-                      duration: float | None = None, seed: int = 0, **option_overrides) -> DrapeScene:
-    """One of :data:`SCENES` at the seed's size (or ``n_fibres`` × ``segments`` when given)."""
+                      duration: float | None = None, seed: int = 0, fibre_spacing: float | None = None,
+                      rest_shape: str = "straight", **option_overrides) -> DrapeScene:
+    """One of :data:`SCENES` at the seed's size (or ``n_fibres`` × ``segments`` when given).
+
+    fibre_spacing : lattice spacing of the helical strands (sphere-helical, terrain, plane), m;
+        default :data:`RINGLET_SPACING`. Must exceed the fibre diameter (no start in interpenetration).
+    seed : random seed of the head scene's scalp roots (the other scenes are deterministic).
+    Other keywords go to :class:`~headsim.solvers.chains.ChainOptions`."""
     if name not in SCENES:
         raise ParameterError(f"unknown drape scene {name!r}; choose one of {', '.join(SCENES)}")
     if not (dt > 0 and length > 0):
         raise ParameterError("dt and length must be > 0")
-    rng = np.random.default_rng(seed)
+    spacing = RINGLET_SPACING if fibre_spacing is None else float(fibre_spacing)
+    if not spacing > FIBRE_DIAMETER:
+        raise ParameterError(f"fibre_spacing must exceed the fibre diameter {FIBRE_DIAMETER * 1e6:g} µm "
+                             f"(fibres would start interpenetrating), got {spacing * 1e6:g} µm")
     r = 0.5 * FIBRE_DIAMETER
     law = friction_law(friction_mode)
     mesh = None
@@ -151,31 +192,30 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         dur = 0.6 if duration is None else duration
     elif name in ("sphere-helical", "terrain"):
         F, n = n_fibres or 355, segments or 100
-        roots = _disc(F, 0.004, rng)
         top = 0.12 if name == "sphere-helical" else 0.0
-        polys = [_helix(n + 1, length, 0.012, 0.008, rng.uniform(0, 2 * np.pi), (rx, top, rz))
-                 for rx, rz in roots]
+        polys = list(_ringlet(F, n, length, 0.012, 0.008, (0.0, top, 0.0), spacing))
+        strand = (f"a vertical helical strand (centreline helix radius 1.2 cm, pitch 8 mm; fibres on a "
+                  f"{spacing * 1e6:.0f} µm hexagonal lattice across it; rest shape straight)")
         if name == "sphere-helical":
             R = 0.05
             obstacles = [Obstacle(SphereField((0.015, -R, 0.0), R), name="sphere")]
-            desc = (f"{F} vertical helical fibres × {n} segments, {length * 100:g} cm, roots on a 4 mm disc "
-                    f"at y = {top * 100:g} cm (helix radius 1.2 cm, pitch 8 mm, rest shape straight), "
+            desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = {top * 100:g} cm, "
                     f"sphere R = {R * 100:g} cm with its top at y = 0, offset 1.5 cm; friction {friction_mode}")
         else:
             fld, mesh = _terrain_field()
             obstacles = [Obstacle(fld, name="terrain")]
-            desc = (f"{F} vertical helical fibres × {n} segments, roots at y = 0, onto a bumpy terrain (cosine "
+            desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = 0, onto a bumpy terrain (cosine "
                     f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field 2 mm); friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     elif name == "plane":
         F, n = n_fibres or 250, segments or 100
         alpha = np.deg2rad(22.5)
-        yz = _disc(F, 0.004, rng)
-        polys = [_helix(n + 1, length, 0.012, 0.01, rng.uniform(0, 2 * np.pi), (-0.05, 0.05 + a, b), vertical=False)
-                 for a, b in yz]
+        polys = list(_ringlet(F, n, length, 0.012, 0.01, (-0.05, 0.05, 0.0), spacing, vertical=False))
         nrm = (np.sin(alpha), np.cos(alpha), 0.0)
         obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), nrm), name="plane 22.5°")]
-        desc = (f"{F} horizontal helical fibres × {n} segments, roots fixed, above a 22.5° plane; "
+        desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, a horizontal helical strand (centreline helix "
+                f"radius 1.2 cm, pitch 1 cm; fibres on a {spacing * 1e6:.0f} µm hexagonal lattice; rest shape "
+                f"straight), roots fixed, above a 22.5° plane; "
                 f"friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     else:  # head
@@ -205,7 +245,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
     model, state = chain_model_from_polylines(nodes, offsets, radius=r, density=MASS_DENSITY.value,
                                               young=MODULI_ROBBINS["bend"].value,
                                               shear=MODULI_ROBBINS["torsion"].value, anchored=anchored,
-                                              rest_shape="straight", joint_damping=0.0)
+                                              rest_shape=rest_shape, joint_damping=0.0)
     opts = dict(friction=law)
     opts.update(option_overrides)
     n_steps = max(1, int(round(dur / dt)))
