@@ -5,12 +5,16 @@ and listed in every scene's ``description``):
 
 * ``sphere-horizontal`` (§8.6.1): a flat, one-side-fixed ribbon of horizontal fibres (seed: 500 × 40
   segments, 30 cm) falling onto a sphere centred under its midline.
-* ``sphere-helical`` (§8.6.2, the reference scene): a vertical strand of initially helical fibres
-  (seed: 355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below; rest shape straight, so
-  the helices unwind.
-* ``plane`` (§8.6.4): a horizontal helical arrangement (seed: 250 × 100) onto a 22.5° inclined plane.
+* ``sphere-helical`` (§8.6.2, the reference scene): a vertical, initially helical strand (seed:
+  355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below; rest shape straight by default,
+  so the helix unwinds (``rest_shape="initial"``: a curl that gravity stretches). The seed's "crossing,
+  where the unwinding strand rests on the settled one as a distinct bundle" makes the strand one
+  bundle: a ringlet whose centreline is the helix, the fibres on a hexagonal lattice across it
+  (:data:`RINGLET_SPACING`), so no two fibres start closer than a diameter (the former 355 helices of
+  one radius around a 4 mm disc with random phases started with 13,422 overlapping segment pairs).
+* ``plane`` (§8.6.4): a horizontal helical strand (seed: 250 × 100) onto a 22.5° inclined plane.
 * ``terrain`` (§8.6.3): the vertical helical strand onto a bumpy terrain (grid distance field of a
-  height-field mesh).
+  height-field mesh, solid below the surface).
 * ``head``: fibres rooted on the scalp of the bundled head, draping under gravity against the head's
   narrow-band distance field.
 
@@ -47,7 +51,9 @@ __all__ = ["SCENES", "FRICTION_MODES", "DrapeScene", "DrapeResult", "friction_la
 SCENES = ("sphere-horizontal", "sphere-helical", "plane", "terrain", "head")
 FRICTION_MODES = ("aniso", "iso", "none")
 FIBRE_DIAMETER = 70e-6  # m, Sobottka §8.6 ("durchgängig ein Querschnitt von 70 µm")
-RINGLET_SPACING = 1.5 * FIBRE_DIAMETER  # m, lattice spacing of the helical strands (see build_drape_scene)
+# m, lattice spacing of the helical strands: 1.5 d leaves 35 µm (one radius) between neighbouring fibres,
+# 1.49 d at the chords of 3 mm segments (measured); the seed gives no packing
+RINGLET_SPACING = 1.5 * FIBRE_DIAMETER
 
 
 def friction_law(mode: str) -> FrictionLaw:
@@ -189,6 +195,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
 
     fibre_spacing : lattice spacing of the helical strands (sphere-helical, terrain, plane), m;
         default :data:`RINGLET_SPACING`. Must exceed the fibre diameter (no start in interpenetration).
+    rest_shape : ``"straight"`` (the helices unwind) or ``"initial"`` (the start is the rest shape).
     seed : random seed of the head scene's scalp roots (the other scenes are deterministic).
     Other keywords go to :class:`~headsim.solvers.chains.ChainOptions`."""
     if name not in SCENES:
