@@ -5,12 +5,16 @@ and listed in every scene's ``description``):
 
 * ``sphere-horizontal`` (§8.6.1): a flat, one-side-fixed ribbon of horizontal fibres (seed: 500 × 40
   segments, 30 cm) falling onto a sphere centred under its midline.
-* ``sphere-helical`` (§8.6.2, the reference scene): a vertical strand of initially helical fibres
-  (seed: 355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below; rest shape straight, so
-  the helices unwind.
-* ``plane`` (§8.6.4): a horizontal helical arrangement (seed: 250 × 100) onto a 22.5° inclined plane.
+* ``sphere-helical`` (§8.6.2, the reference scene): a vertical, initially helical strand (seed:
+  355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below; rest shape straight by default,
+  so the helix unwinds (``rest_shape="initial"``: a curl that gravity stretches). The seed's "crossing,
+  where the unwinding strand rests on the settled one as a distinct bundle" makes the strand one
+  bundle: a ringlet whose centreline is the helix, the fibres on a hexagonal lattice across it
+  (:data:`RINGLET_SPACING`), so no two fibres start closer than a diameter (the former 355 helices of
+  one radius around a 4 mm disc with random phases started with 13,422 overlapping segment pairs).
+* ``plane`` (§8.6.4): a horizontal helical strand (seed: 250 × 100) onto a 22.5° inclined plane.
 * ``terrain`` (§8.6.3): the vertical helical strand onto a bumpy terrain (grid distance field of a
-  height-field mesh).
+  height-field mesh, solid below the surface).
 * ``head``: fibres rooted on the scalp of the bundled head, draping under gravity against the head's
   narrow-band distance field.
 
@@ -47,6 +51,9 @@ __all__ = ["SCENES", "FRICTION_MODES", "DrapeScene", "DrapeResult", "friction_la
 SCENES = ("sphere-horizontal", "sphere-helical", "plane", "terrain", "head")
 FRICTION_MODES = ("aniso", "iso", "none")
 FIBRE_DIAMETER = 70e-6  # m, Sobottka §8.6 ("durchgängig ein Querschnitt von 70 µm")
+# m, lattice spacing of the helical strands: 1.5 d leaves 35 µm (one radius) between neighbouring fibres,
+# 1.49 d at the chords of 3 mm segments (measured); the seed gives no packing
+RINGLET_SPACING = 1.5 * FIBRE_DIAMETER
 
 
 def friction_law(mode: str) -> FrictionLaw:
@@ -93,45 +100,162 @@ class DrapeResult:
     seconds: dict = field(default_factory=dict)  # summed per-phase wall time, s
 
 
-def _helix(n_nodes, length, radius, pitch_height, phase, axis_point, vertical=True):
-    """A helix polyline of arc length ``length`` (m) around a vertical (y) or horizontal (x) axis."""
-    turns_len = np.hypot(2 * np.pi * radius, pitch_height)
-    s = np.linspace(0, length, n_nodes)
-    ang = phase + 2 * np.pi * s / turns_len
-    h = pitch_height * s / turns_len
-    if vertical:
-        return np.stack([axis_point[0] + radius * np.cos(ang), axis_point[1] - h, axis_point[2] + radius * np.sin(ang)], 1)
-    return np.stack([axis_point[0] + h, axis_point[1] + radius * np.cos(ang), axis_point[2] + radius * np.sin(ang)], 1)
+def _hex_lattice(n: int, spacing: float) -> np.ndarray:
+    """(n, 2) points of a hexagonal lattice of ``spacing`` (m), the n closest to the origin (a disc)."""
+    k = int(np.ceil(np.sqrt(n))) + 2
+    ii, jj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1), indexing="ij")
+    lat = np.stack([ii + 0.5 * jj, jj * np.sqrt(3) / 2], -1).reshape(-1, 2) * spacing
+    return lat[np.argsort(np.hypot(lat[:, 0], lat[:, 1]), kind="stable")[:n]]
 
 
-def _disc(n, radius, rng):
-    r = radius * np.sqrt(rng.uniform(size=n))
-    t = rng.uniform(0, 2 * np.pi, n)
-    return np.stack([r * np.cos(t), r * np.sin(t)], 1)
+def _ringlet(n_fibres: int, n_segments: int, length: float, radius: float, pitch: float, top,
+             spacing: float, vertical: bool = True) -> np.ndarray:
+    """A helical strand (ringlet): (n_fibres, n_segments + 1, 3) node polylines, m.
+
+    The strand's centreline c(s) is a helix of ``radius`` and ``pitch`` (rise per turn) around a
+    vertical (−y) or horizontal (+x) axis through ``top``, arc length ``length``. The fibres sit on a
+    hexagonal lattice of ``spacing`` in the centreline's normal plane, spanned by the principal
+    normal (−e_r for a helix) and the binormal B (Frenet frame; it turns about the tangent with the
+    helix torsion, which leaves the in-plane distances unchanged), so fibre j is c(s) + a_j e_r(s) +
+    b_j B(s). All fibres are sampled at the same centreline arc lengths s_k: neighbouring fibres then
+    stay one spacing apart along their whole length, chords included (the chord of a 3 mm segment on
+    a 12 mm helix cuts the arc by ℓ²/(8ρ) ≈ 94 µm, more than a diameter, so fibres sampled at their
+    own arc lengths would start interpenetrating). The price: a fibre's length differs from
+    ``length`` by the radial offset, by the factor ≈ 1 + κ a_j (κ = ρ/(ρ² + c²) the curvature,
+    c = pitch/2π), a few per cent at the strand's edge."""
+    turn = np.hypot(2 * np.pi * radius, pitch)  # arc length of one turn
+    kappa = radius / (radius**2 + (pitch / (2 * np.pi)) ** 2)
+    # chords of neighbouring fibres (same centreline arc lengths) are cos(ℓκ/2) times closer than the nodes
+    clear = spacing * np.cos(0.5 * min(length / n_segments * kappa, np.pi))
+    if not clear > FIBRE_DIAMETER:
+        raise ParameterError(f"fibre spacing {spacing * 1e6:.1f} µm leaves chords {clear * 1e6:.1f} µm apart at "
+                             f"{n_segments} segments on a {radius * 1e3:g} mm helix, not more than the fibre "
+                             f"diameter {FIBRE_DIAMETER * 1e6:g} µm: the fibres would start interpenetrating")
+    lat = _hex_lattice(n_fibres, spacing)
+    s = np.linspace(0.0, length, n_segments + 1)
+    ang = 2 * np.pi * s / turn
+    rise = pitch * s / turn
+    # local coordinates with the helix axis along −z': centreline, radial e_r, tangent t, binormal t × e_r
+    c = np.stack([radius * np.cos(ang), radius * np.sin(ang), -rise], 1)
+    er = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)
+    t = np.stack([-2 * np.pi * radius * np.sin(ang), 2 * np.pi * radius * np.cos(ang), np.full_like(ang, -pitch)], 1)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    b = np.cross(t, er)
+    local = c[None] + lat[:, None, 0:1] * er[None] + lat[:, None, 1:2] * b[None]
+    x0, y0, z0 = top
+    if vertical:  # axis along −y: local (x', y', z') → world (x', z', y')
+        return np.stack([x0 + local[..., 0], y0 + local[..., 2], z0 + local[..., 1]], -1)
+    return np.stack([x0 - local[..., 2], y0 + local[..., 0], z0 + local[..., 1]], -1)
+
+
+_TERRAIN_K = 2 * np.pi / 0.12  # rad/m, wave number of the bumps (period 12 cm)
+_TERRAIN_AMPLITUDE = 0.025  # m
+
+
+def _terrain_height(x, z):
+    """Height y (m) of the bumpy terrain at (x, z) m: cosine bumps of 2.5 cm, period 12 cm, in a bowl."""
+    k, a = _TERRAIN_K, _TERRAIN_AMPLITUDE
+    return -0.10 + a * np.cos(k * x) * np.cos(k * z) - (x**2 + z**2)
+
+
+def _terrain_slope(x, z):
+    """(∂h/∂x, ∂h/∂z) of :func:`_terrain_height`."""
+    k, a = _TERRAIN_K, _TERRAIN_AMPLITUDE
+    return -a * k * np.sin(k * x) * np.cos(k * z) - 2 * x, -a * k * np.cos(k * x) * np.sin(k * z) - 2 * z
+
+
+def _terrain_distance(points, iterations: int = 4, near: float = 6e-3):
+    """Signed distance (m) of points (n, 3) to the smooth terrain surface y = h(x, z), positive above.
+
+    Within ``near`` of the surface (by the first-order estimate (y − h)/√(1 + |∇h|²)) the closest
+    surface point (u, h(u, w), w) is found by Newton on the tangency conditions (p − s)·s_u =
+    (p − s)·s_w = 0 from the vertical foot point (quadratic convergence: 1e-14 m after 3 iterations at
+    4 mm; the projection is unique there, the bumps' radius of curvature being ≥ 1.4 cm). Farther away
+    the first-order estimate is used, at least ``near`` in magnitude (sign exact, gradient out of the
+    solid)."""
+    p = np.asarray(points, float)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    sx, sz = _terrain_slope(x, z)
+    first = (y - _terrain_height(x, z)) / np.sqrt(1 + sx**2 + sz**2)
+    out = np.sign(first) * np.maximum(np.abs(first), near)
+    i = np.nonzero(np.abs(first) < near)[0]
+    px, py, pz = x[i], y[i], z[i]
+    u, w = px.copy(), pz.copy()
+    k, a = _TERRAIN_K, _TERRAIN_AMPLITUDE
+    for _ in range(iterations):
+        hu, hw = _terrain_slope(u, w)
+        huu = -a * k * k * np.cos(k * u) * np.cos(k * w) - 2
+        huw = a * k * k * np.sin(k * u) * np.sin(k * w)
+        dx, dy, dz = px - u, py - _terrain_height(u, w), pz - w
+        g1, g2 = dx + dy * hu, dz + dy * hw  # (p − s)·s_u, (p − s)·s_w with s_u = (1, h_u, 0), s_w = (0, h_w, 1)
+        j11 = -1 - hu * hu + dy * huu
+        j12 = -hu * hw + dy * huw
+        j22 = -1 - hw * hw + dy * huu  # h_ww = h_uu for this terrain
+        det = j11 * j22 - j12 * j12
+        u = u - (j22 * g1 - j12 * g2) / det
+        w = w - (j11 * g2 - j12 * g1) / det
+    dist = np.sqrt((px - u) ** 2 + (py - _terrain_height(u, w)) ** 2 + (pz - w) ** 2)
+    out[i] = np.where(first[i] >= 0, dist, -dist)
+    return out
+
+
+def terrain_level(spacing: float) -> float:
+    """Iso-level offset (m) of the terrain field of grid ``spacing`` (m): (3/8) Δs² κ_max, the bound of
+    the trilinear interpolation error of a distance function whose Hessian is bounded by the largest
+    principal curvature κ_max = A k² + 2 m⁻¹ of the terrain (h/8 per axis, three axes). Fibres rest on
+    this iso-surface, so the interpolation error cannot put them into the true surface."""
+    kappa = _TERRAIN_AMPLITUDE * _TERRAIN_K**2 + 2.0
+    return 3.0 / 8.0 * spacing**2 * kappa
 
 
 def _terrain_field(spacing=2e-3):
-    """Bumpy terrain y = h(x, z) as a triangle mesh and its narrow-band distance field (m)."""
-    n = 61
+    """Bumpy terrain y = h(x, z) as a triangle mesh (for pictures) and its distance field (m).
+
+    The field samples the exact signed distance to the smooth surface (:func:`_terrain_distance`) on a
+    grid of ``spacing`` over the terrain, 32 mm below and above it; it is a solid below the surface.
+    It replaces a narrow-band field of a 5 mm height-field mesh with all-positive far values, which
+    (a) differed from the mesh's exact distance by up to 258 µm (7.4 r) at the mesh creases, where the
+    trilinear interpolation cannot follow the kink of the distance function, and the 5 mm mesh
+    itself was up to 0.43 mm off the smooth bumps, and (b) was positive deeper than its 8 mm band, so
+    a fibre end pushed in that far met a false zero crossing or a zero normal and fell through
+    (measured: tips 8 cm under the surface after 0.5 s in the 19 × 30 scene). Trilinear
+    interpolation of the smooth distance errs by at most ≈ (3/8) Δs² κ (κ ≤ 70 m⁻¹ the largest
+    principal curvature of the bumps): 105 µm bound (measured: ≤ 92 µm within 4 mm of the surface),
+    used as the obstacle's iso-level offset (:func:`terrain_level`)."""
+    n = 121
     xs = np.linspace(-0.15, 0.15, n)
     X, Z = np.meshgrid(xs, xs, indexing="ij")
-    Y = -0.10 + 0.025 * np.cos(2 * np.pi * X / 0.12) * np.cos(2 * np.pi * Z / 0.12) - 0.01 * (X**2 + Z**2) / 0.01
+    Y = _terrain_height(X, Z)
     v = np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1)
     idx = np.arange(n * n).reshape(n, n)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
     tri = np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, c], 1)])  # +y facing
-    return GridDistanceField.from_mesh(v, tri, spacing, band=4 * spacing, far_sign="positive"), (v, tri)
+    pad = 8 * spacing
+    lower = np.array([-0.15 - pad, Y.min() - 2 * pad, -0.15 - pad])
+    upper = np.array([0.15 + pad, Y.max() + 2 * pad, 0.15 + pad])
+    fld = GridDistanceField.from_function(_terrain_distance, lower, upper, spacing)
+    return fld, (v, tri)
 
 
 def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int | None = None,
                       segments: int | None = None, length: float = 0.30, dt: float = 1e-3,
-                      duration: float | None = None, seed: int = 0, **option_overrides) -> DrapeScene:
-    """One of :data:`SCENES` at the seed's size (or ``n_fibres`` × ``segments`` when given)."""
+                      duration: float | None = None, seed: int = 0, fibre_spacing: float | None = None,
+                      rest_shape: str = "straight", **option_overrides) -> DrapeScene:
+    """One of :data:`SCENES` at the seed's size (or ``n_fibres`` × ``segments`` when given).
+
+    fibre_spacing : lattice spacing of the helical strands (sphere-helical, terrain, plane), m;
+        default :data:`RINGLET_SPACING`. Must exceed the fibre diameter (no start in interpenetration).
+    rest_shape : ``"straight"`` (the helices unwind) or ``"initial"`` (the start is the rest shape).
+    seed : random seed of the head scene's scalp roots (the other scenes are deterministic).
+    Other keywords go to :class:`~headsim.solvers.chains.ChainOptions`."""
     if name not in SCENES:
         raise ParameterError(f"unknown drape scene {name!r}; choose one of {', '.join(SCENES)}")
     if not (dt > 0 and length > 0):
         raise ParameterError("dt and length must be > 0")
-    rng = np.random.default_rng(seed)
+    spacing = RINGLET_SPACING if fibre_spacing is None else float(fibre_spacing)
+    if not spacing > FIBRE_DIAMETER:
+        raise ParameterError(f"fibre_spacing must exceed the fibre diameter {FIBRE_DIAMETER * 1e6:g} µm "
+                             f"(fibres would start interpenetrating), got {spacing * 1e6:g} µm")
     r = 0.5 * FIBRE_DIAMETER
     law = friction_law(friction_mode)
     mesh = None
@@ -151,31 +275,32 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         dur = 0.6 if duration is None else duration
     elif name in ("sphere-helical", "terrain"):
         F, n = n_fibres or 355, segments or 100
-        roots = _disc(F, 0.004, rng)
         top = 0.12 if name == "sphere-helical" else 0.0
-        polys = [_helix(n + 1, length, 0.012, 0.008, rng.uniform(0, 2 * np.pi), (rx, top, rz))
-                 for rx, rz in roots]
+        polys = list(_ringlet(F, n, length, 0.012, 0.008, (0.0, top, 0.0), spacing))
+        strand = (f"a vertical helical strand (centreline helix radius 1.2 cm, pitch 8 mm; fibres on a "
+                  f"{spacing * 1e6:.0f} µm hexagonal lattice across it; rest shape straight)")
         if name == "sphere-helical":
             R = 0.05
             obstacles = [Obstacle(SphereField((0.015, -R, 0.0), R), name="sphere")]
-            desc = (f"{F} vertical helical fibres × {n} segments, {length * 100:g} cm, roots on a 4 mm disc "
-                    f"at y = {top * 100:g} cm (helix radius 1.2 cm, pitch 8 mm, rest shape straight), "
+            desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = {top * 100:g} cm, "
                     f"sphere R = {R * 100:g} cm with its top at y = 0, offset 1.5 cm; friction {friction_mode}")
         else:
             fld, mesh = _terrain_field()
-            obstacles = [Obstacle(fld, name="terrain")]
-            desc = (f"{F} vertical helical fibres × {n} segments, roots at y = 0, onto a bumpy terrain (cosine "
-                    f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field 2 mm); friction {friction_mode}")
+            # iso-level offset (§8.6.5) = the bound of the trilinear interpolation error, (3/8) Δs² κ_max
+            obstacles = [Obstacle(fld, level=terrain_level(fld.spacing), name="terrain")]
+            desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = 0, onto a bumpy terrain (cosine "
+                    f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field 2 mm of the smooth surface, iso-level offset "
+                    f"{terrain_level(2e-3) * 1e6:.0f} µm); friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     elif name == "plane":
         F, n = n_fibres or 250, segments or 100
         alpha = np.deg2rad(22.5)
-        yz = _disc(F, 0.004, rng)
-        polys = [_helix(n + 1, length, 0.012, 0.01, rng.uniform(0, 2 * np.pi), (-0.05, 0.05 + a, b), vertical=False)
-                 for a, b in yz]
+        polys = list(_ringlet(F, n, length, 0.012, 0.01, (-0.05, 0.05, 0.0), spacing, vertical=False))
         nrm = (np.sin(alpha), np.cos(alpha), 0.0)
         obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), nrm), name="plane 22.5°")]
-        desc = (f"{F} horizontal helical fibres × {n} segments, roots fixed, above a 22.5° plane; "
+        desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, a horizontal helical strand (centreline helix "
+                f"radius 1.2 cm, pitch 1 cm; fibres on a {spacing * 1e6:.0f} µm hexagonal lattice; rest shape "
+                f"straight), roots fixed, above a 22.5° plane; "
                 f"friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     else:  # head
@@ -205,7 +330,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
     model, state = chain_model_from_polylines(nodes, offsets, radius=r, density=MASS_DENSITY.value,
                                               young=MODULI_ROBBINS["bend"].value,
                                               shear=MODULI_ROBBINS["torsion"].value, anchored=anchored,
-                                              rest_shape="straight", joint_damping=0.0)
+                                              rest_shape=rest_shape, joint_damping=0.0)
     opts = dict(friction=law)
     opts.update(option_overrides)
     n_steps = max(1, int(round(dur / dt)))
