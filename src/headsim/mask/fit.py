@@ -69,7 +69,8 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   leaves 180-1000 N of true-depth penalty, the loop cycles for 12-100 updates, also without pitch,
   also with loose inner solves); moving the planes to the closest point at every energy
   evaluation (with triangle normals the line search fails, |g| 0.2 N; with shortest-way-out
-  normals |g| 0.05 N after 150 Newton iterations against 0.015 N: the polyhedral cushion's
+  normals |g| 0.05 N after 150 Newton iterations against 0.015 N, with vertex-interpolated
+  normals the line search fails at |g| 0.08 N after 44: the polyhedral cushion's
   distance is not smooth enough for Newton). A consistent contact needs a smooth (or
   curvature-aware) distance to the cushion, e.g. a smoothed surface or an IPC-type barrier, and
   the symmetric (cushion-into-skin) pass; until then the nonlinear seal/leak answer on the
