@@ -73,6 +73,33 @@ def test_aperture_rules():
         FitOptions(leak_threshold_lpm=0.0)
 
 
+def test_skin_inside_the_cushion_is_no_open_film():
+    """A skin vertex inside the cushion body without contact pressure (interpenetrated material)
+    gets the touching aperture, not its depth; the same vertex as far outside keeps its distance.
+    Construction: two crop vertices moved 0.5 mm either side of a cushion skin-side triangle's
+    centroid along its outward normal, all pressures 0."""
+    from headsim.collide import TriangleBVH
+
+    p = coarse_problem()
+    fit = coarse_fit(8.0)
+    mask = fit.deformed_mask
+    mv = mask.tetmesh.vertices
+    tri = mask.contact_triangles[len(mask.contact_triangles) // 2]
+    centre = mv[tri].mean(axis=0)
+    normal = TriangleBVH(mv, tri[None]).triangle_normals(np.array([0]))[0]
+    depth = 0.5e-3
+    inner, outer = p.crop_face_ids[:2]
+    fv = fit.deformed_face.vertices.copy()
+    fv[inner] = centre - depth * normal
+    fv[outer] = centre + depth * normal
+    face = fit.deformed_face.with_vertices(fv)
+    assert TriangleBVH(mv, mask.tetmesh.boundary_triangles).contains(fv[[inner, outer]]).tolist() == [True, False]
+    h = leak_aperture(face, mask, np.zeros(face.n_vertices), p.options.therapy_pressure,
+                      skin_roughness=20e-6, gap_cap=2e-3)
+    assert h[inner] == 20e-6
+    assert h[outer] == pytest.approx(depth, rel=1e-6)
+
+
 def test_threshold_only_changes_the_judgement():
     p = coarse_problem()
     fit = coarse_fit(8.0)

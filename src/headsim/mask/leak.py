@@ -34,7 +34,12 @@ no-flux walls). Air: mu = 1.81e-5 Pa s, rho = 1.2 kg/m^3 (20 deg C).
   a mm away. Measured on the demo configuration (``benchmarks/bench_leak.py``, nonlinear fits at
   2.5-25 N, nasal-M at 4 and 3 mm): with the axial gap the leak estimate is 1.9-3.6x the
   closest-point one, never smaller; see :mod:`headsim.mask.fit` "Leak
-  flow";
+  flow". The distance is signed: a skin vertex inside the closed cushion body (generalised winding
+  number of the mask's boundary, :meth:`headsim.collide.TriangleBVH.contains`) lies in
+  interpenetrated material, through which no air can pass, so it gets ``skin_roughness`` (the
+  touching aperture) whatever its penalty pressure; the unsigned distance would have counted its
+  depth as an open film (issue 6 follow-up; on the demo fits at 15 and 30 N no such vertex had
+  zero pressure, one at 15 N had 0 < p <= the therapy pressure);
 - ``gap_cap`` = 2 mm where no cushion is near (inside the mask, outside the cushion): the film
   equation is not meant for open air, and the resistance of a 2 mm film is (2 mm / 50 um)^3 = 6e4
   times below that of a 50 um channel of the same shape, so the cap does not change a leak that
@@ -180,7 +185,8 @@ def leak_aperture(face: SurfaceMesh, mask: MaskModel, pressure_pa: np.ndarray, t
     face : the deformed face, m; mask : the deformed mask (its skin-side ``contact_triangles``);
     pressure_pa : (n,) Pa contact pressure per face vertex; therapy_pressure : Pa;
     distance : (n,) m skin-cushion distance to use instead of the closest-point one (e.g. the axial
-    ``FitResult.gap``, for comparison; inf where none)
+    ``FitResult.gap``, for comparison; inf where none; default: the signed closest-point distance, 0 inside the
+    cushion body, then clipped to [skin_roughness, gap_cap])
     """
     from headsim.collide import TriangleBVH
 
@@ -192,6 +198,10 @@ def leak_aperture(face: SurfaceMesh, mask: MaskModel, pressure_pa: np.ndarray, t
     if distance is None:
         d = TriangleBVH(mask.tetmesh.vertices, mask.contact_triangles).closest_points(
             face.vertices, max_distance=gap_cap).distance
+        near = np.flatnonzero(np.isfinite(d))  # only skin near the cushion can be inside it
+        if len(near):
+            body = TriangleBVH(mask.tetmesh.vertices, mask.tetmesh.boundary_triangles)
+            d[near[body.contains(face.vertices[near])]] = 0.0  # interpenetrated: no film
     else:
         d = np.asarray(distance, dtype=np.float64)
         if d.shape != p.shape:
