@@ -1017,8 +1017,10 @@ class ChainSolver:
                                    sweeps_box, x_mid, warm)
             vel_impulses = self._impulses
             u_pos = u_vel
-            if o.penetration_recovery > 0 and (gaps < 0).any():
+            last = it + 1 == o.harmonisation_iterations
+            if last and o.penetration_recovery > 0 and (gaps < 0).any():
                 # split impulse: the penetration push-out moves the positions but is not kept as velocity
+                # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
                 u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
                                        R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm)
             u_end = u_vel if o.split_recovery else u_pos
