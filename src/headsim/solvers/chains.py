@@ -663,6 +663,7 @@ class ChainSolver:
         self._warm = None  # (sorted keys, λ, friction) of the last step's contact solution (warm start)
         self._impulses = None
         self._row_counts = (0, 0)
+        self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
 
     @staticmethod
     def _writable(a):
@@ -709,6 +710,12 @@ class ChainSolver:
         h = model.half_length
         r = model.radius
         margin = o.speculative_speed * dt
+        # persistence filter (eq. 8.9) with u⁻ given: approaching or smooth contacts only; relative normal
+        # velocities below one step of gravity count as smooth (persistent): bodies resting on each other
+        # differ by round-off-sized amounts in their pre-impact velocities, which must not switch resting
+        # contacts off
+        smooth = float(np.linalg.norm(o.gravity)) * dt
+        uu_all = np.ascontiguousarray(u_minus) if u_minus is not None else None
         parts = []
         # obstacles: segment end points (Sobottka §8.6.5: end points suffice at this segment length)
         if obstacles:
@@ -766,11 +773,12 @@ class ChainSolver:
                 n, la, lb = np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
                 gap, tight = np.empty(P), np.empty(P, np.bool_)
                 coupled = o.contact_coupling == "coupled"
-                uu = np.ascontiguousarray(u_minus) if (coupled and u_minus is not None) else np.zeros((0, 6))
+                uu = np.ascontiguousarray(u_minus) if u_minus is not None else np.zeros((0, 6))
                 k = KP.fibre_pair_rows(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(params, np.float64),
                                        np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r,
                                        np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin),
-                                       float(dt), uu, CLOSING_MARGIN_FACTOR, a, b, n, la, lb, gap, tight)
+                                       float(dt), uu, CLOSING_MARGIN_FACTOR, coupled, smooth, a, b, n, la, lb, gap,
+                                       tight)
                 a, b, n, la, lb, gap, tight = a[:k], b[:k], n[:k], la[:k], lb[:k], gap[:k], tight[:k]
                 z = np.zeros(k, bool)
                 S = model.n_segments
@@ -779,6 +787,14 @@ class ChainSolver:
                 else:
                     parts.append(_Rows(a, b, n, la, lb, gap, z, ~z, a * S + b))
                     parts.append(_Rows(b, a, -n, lb, la, gap, z, z, b * S + a))
+        if u_minus is not None:  # persistence filter of the obstacle rows (the fibre rows' is in the kernel)
+            for i, p in enumerate(parts):
+                if p.obstacle.all() and len(p.body):
+                    vn = np.empty(len(p.body))
+                    KP.row_normal_velocity(p.body, p.partner, p.normal, p.lever, p.partner_lever, uu_all, vn)
+                    keep = vn <= smooth
+                    if not keep.all():
+                        parts[i] = _Rows(*[getattr(p, k)[keep] for k in _Rows.__dataclass_fields__])
         if not parts:
             z = np.zeros((0, 3))
             return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
@@ -934,7 +950,12 @@ class ChainSolver:
             return u_minus
         if o.contact_coupling == "coupled":
             u = np.ascontiguousarray(u_minus.copy())
-            pr, n_rows = _kernel_rows(rows)
+            if self._gathered is None or self._gathered[0] is not rows:  # once per detection
+                pr, n_rows = _kernel_rows(rows)
+                geo = tuple(np.ascontiguousarray(a[pr]) for a in (rows.body, rows.partner, rows.normal, rows.lever,
+                                                                   rows.partner_lever))
+                self._gathered = (rows, pr, n_rows, geo)
+            _, pr, n_rows, geo = self._gathered
             gp = gaps[pr]
             tg = np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt))
             mc, ms = self._mu
@@ -947,9 +968,7 @@ class ChainSolver:
             chain_start[1:] = jk[1:] != jl[:-1]
             chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
             kern = KC.project_coupled_parallel if model.n_segments >= o.parallel_threshold else KC.project_coupled
-            sw, self._residual, promoted = kern(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
-                      np.ascontiguousarray(rows.lever[pr]), np.ascontiguousarray(rows.partner_lever[pr]),
-                      np.ascontiguousarray(tg), u, self._writable(model.mass), R_mid, self._writable(model.inertia), mc, ms,
+            sw, self._residual, promoted = kern(*geo, np.ascontiguousarray(tg), u, self._writable(model.mass), R_mid, self._writable(model.inertia), mc, ms,
                       float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p, fr_p,
                       jk, jl, jrk, jrl, jt, jc, jw0, chain_off, n_rows)
             lam[:] = 0.0
@@ -1026,16 +1045,7 @@ class ChainSolver:
                 secs["detection"] += time.perf_counter() - t2
                 t2 = time.perf_counter()
                 Iwi = _inv_inertia_world(model, R_mid) if o.contact_coupling == "per-body" else None
-                # persistence filter (eq. 8.9): approaching or smooth contacts only
-                vn = np.empty(len(rows.body))
-                KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
-                                       np.ascontiguousarray(u_minus), vn)
-                # relative normal velocities below one step of gravity count as smooth (persistent):
-                # bodies resting on each other differ by round-off-sized amounts in their pre-impact
-                # velocities, which must not switch resting contacts off
-                smooth = np.linalg.norm(g) * dt
-                keep = vn <= smooth
-                rows = _Rows(*[getattr(rows, k)[keep] for k in _Rows.__dataclass_fields__])
+                # (persistence filter, eq. 8.9: in _detect)
                 if o.contact_coupling == "coupled":  # one Gauss–Seidel over all rows: no per-body grouping
                     order = row_off = None
                     bodies = rows.body

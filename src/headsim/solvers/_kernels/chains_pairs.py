@@ -14,15 +14,16 @@ from numba import njit
 
 @njit(cache=True)
 def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
-                    a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
+                    mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
     """Contact rows of closest-point pairs (pairs (P, 2) segment ids, params (P, 2) axis parameters in
     [0, 1]). Per pair: closest points c_a, c_b, normal n = (c_a − c_b)/‖·‖ (the axes' cross product for
     touching axes, +y for parallel touching ones), gap g = ‖c_a − c_b‖ − r_a − r_b, contact points
     p_a = c_a − r_a n, p_b = c_b + r_b n and levers p − x. A pair is kept when
     g < band + 0.75 (speed_a + speed_b) Δt with band = ½ band_fraction (r_a + r_b) + margin (m; speed
     (S,) m/s: each segment's |v| + h|ω|), and marked ``tight`` when g < band + closing_factor · c Δt
-    with c = max(0, −n·(u_a(p_a) − u_b(p_b))) the normal closing speed of the twists u (S, 6); an
-    empty u marks every kept pair tight. Writes the kept rows compactly to the outputs (length ≥ P) and
+    with c = max(0, −n·(u_a(p_a) − u_b(p_b))) the normal closing speed of the twists u (S, 6) (only with
+    ``mark_tight``; otherwise, and for an empty u, every kept pair is tight). With u given, pairs that
+    separate faster than ``smooth`` (m/s, n·(u_a − u_b) > smooth) are dropped (persistence filter, eq. 8.9). Writes the kept rows compactly to the outputs (length ≥ P) and
     returns their number."""
     k = 0
     have_u = u.shape[0] > 0
@@ -67,9 +68,12 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
             vb1 = u[b, 1] + u[b, 5] * lb0 - u[b, 3] * lb2
             vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
             closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
+            if -closing > smooth:
+                continue
             if closing < 0.0:
                 closing = 0.0
-            tight = gap < band + closing_factor * closing * dt
+            if mark_tight:
+                tight = gap < band + closing_factor * closing * dt
         a_out[k] = a
         b_out[k] = b
         n_out[k, 0] = n0
