@@ -51,9 +51,23 @@ Gap handling (our additions, both stated): the normal bound is v_N − g/Δt for
 with gap g > 0 inside the detection band (a speculative contact: it only acts if the pair would
 close the gap within a full step, i.e. by the next mid-step, where the next detection happens, so
 the unconstrained first half step cannot carry it into penetration; the band grows with each
-segment's speed, so discrete detection does not tunnel), and v_N + β·(−g)/(½Δt) for a penetration (β = ``penetration_recovery``), the latter
-as a split impulse: it moves the positions of the second half step but is not kept in the velocity.
-Later harmonisation passes update the gaps to first order with the contact points' motion.
+segment's speed, so discrete detection does not tunnel), and v_N + β·(−g)/(½Δt) for a penetration
+(β = ``penetration_recovery``), the latter as a split impulse: it moves the positions of the second
+half step but is not kept in the velocity. Later harmonisation passes update the gaps to first order
+with the contact points' motion.
+
+Rows and candidates (coupled mode): the absolute-speed band finds every pair that *could* close its gap
+within the step (any contact point moves at most |v| + h|ω|), but most of those pairs move together
+(neighbouring fibres falling side by side: 753 k pairs on the 355 × 100 helical scene at t = 32 ms, of
+which 23 k end with an impulse). Only the pairs whose gap is within the fixed band plus their
+*relative* normal closing speed at u⁻ × Δt are rows from the start (14 % there); the others are
+candidates. A relative margin alone is unsafe, because the velocities change during the solve (a strand
+stopped at its bottom by the sphere while the strand above still falls onto it), so every full
+Gauss–Seidel sweep re-tests the candidates at the current velocities and turns those whose speculative
+bound is violated, i.e. that would now close their gap within the step, into rows (≈ 600 per step
+there); the solve ends with a full sweep that found none (or after 2 × ``qp_iterations``). The contact
+set the solution satisfies is therefore the one of the absolute band, as before: a candidate the solve
+leaves out is one whose final velocities do not close its gap within the step.
 
 Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
 t₂ = n × t₁; the admissible tangential impulses are the polygon λ_α·conv{μ_β d_β}
@@ -77,6 +91,7 @@ import numpy as np
 from headsim.errors import DivergenceError, ParameterError
 from headsim.solvers._kernels import chains as K
 from headsim.solvers._kernels import chains_coupled as KC
+from headsim.solvers._kernels import chains_pairs as KP
 
 __all__ = [
     "FrictionLaw",
@@ -103,6 +118,12 @@ STANDARD_GRAVITY = 9.80665
 # sink of the cold start (0.0016 r vs 0.0032 r). In-step warm starts (split solve, second harmonisation
 # pass) raised it as well and are not used.
 WARM_START_FRACTION = 0.5
+# A fibre pair is a contact row of the coupled solve from the start when its gap is within the detection band
+# plus this factor × its relative normal closing speed at u⁻ × Δt (ChainSolver._detect); the rest of the
+# pairs the absolute-speed margin finds are candidates that the solve adds as rows when its velocities
+# would close them within the step. 1 is the speculative condition itself at u⁻; on the 355 × 100 helical
+# scene at t = 32 ms it keeps 14 % of the 753 k pairs, all but 0.1 % of the rows that end with an impulse.
+CLOSING_MARGIN_FACTOR = 1.0
 
 
 # ------------------------------------------------------------------------------------------------
@@ -553,6 +574,9 @@ class StepStats:
     newton_iterations: int = 0
     qp_sweeps: int = 0
     harmonisation_iterations: int = 0
+    contact_rows: int = 0  # coupled mode: rows of the last contact solve, from the start + added during it
+    candidate_rows: int = 0  # coupled mode: candidate pairs not rows from the start
+    promoted_rows: int = 0  # of those, added during the solves of the step (sum)
     seconds: dict = field(default_factory=dict)
 
     @property
@@ -571,6 +595,19 @@ class _Rows:
     obstacle: np.ndarray
     primary: np.ndarray
     key: np.ndarray  # int64 identity of the contact across steps (warm start): a·S + b, or < 0 for obstacles
+    tight: np.ndarray = None  # row from the start (False: a candidate, coupled mode; see ChainSolver._detect)
+
+    def __post_init__(self):
+        if self.tight is None:
+            self.tight = np.ones(len(self.body), bool)
+
+
+def _kernel_rows(rows: _Rows) -> tuple[np.ndarray, int]:
+    """Primary rows in the coupled kernel's order, rows from the start (``tight``) first, then the
+    candidates; and the number of the former."""
+    t = np.nonzero(rows.primary & rows.tight)[0]
+    c = np.nonzero(rows.primary & ~rows.tight)[0]
+    return np.concatenate([t, c]), len(t)
 
 
 def _obstacle_key(obstacle_index, segments, kind, n_segments):
@@ -639,6 +676,14 @@ class ChainSolver:
         self._mu = options.friction.generators()
         self._warm = None  # (sorted keys, λ, friction) of the last step's contact solution (warm start)
         self._impulses = None
+        self._row_counts = (0, 0)
+        self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
+
+    @staticmethod
+    def _writable(a):
+        """A writeable copy of a read-only model array: the coupled kernel compiled for read-only mass and
+        inertia arrays ran 5x slower on the same data (measured, 120 x 50 helical scene)."""
+        return a if a.flags.writeable else a.copy()
 
     # -- joints ----------------------------------------------------------------------------------
     def _joints(self, model, x, R, v, w, dt, dx_extra, dth_extra):
@@ -662,12 +707,29 @@ class ChainSolver:
         return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
 
     # -- detection ---------------------------------------------------------------------------------
-    def _detect(self, model, x, R, dt, obstacles) -> _Rows:
+    def _detect(self, model, x, R, dt, obstacles, u_minus=None) -> _Rows:
+        """Contact rows at the mid-step state x, R. Fibre pairs come from the BVH with per-segment radii grown by
+        0.75 |u|Δt of each segment's own speed (|v| + h|ω|, so the relative speed of any pair is covered) and
+        are kept within ``contact_band`` + ``speculative_speed``·Δt + 0.75 (|u_a| + |u_b|)Δt of contact. In
+        coupled mode, with the pre-impact twists ``u_minus`` given, only the pairs whose gap is within the
+        band plus :data:`CLOSING_MARGIN_FACTOR` × their relative normal closing speed × Δt are rows from the
+        start (``tight``); the others are candidates that the coupled solve turns into rows as soon as its
+        current velocities would close their gap within the step (see
+        :func:`headsim.solvers._kernels.chains_coupled._project_coupled_impl`): a pair whose partner is
+        stopped during the solve (a falling strand whose bottom lands) gets its row then, so the margin
+        from the absolute speeds still bounds which pairs can collide, while only the pairs that do take
+        part in the iteration."""
         o = self.options
         d3 = R[:, :, 2]
         h = model.half_length
         r = model.radius
         margin = o.speculative_speed * dt
+        # persistence filter (eq. 8.9) with u⁻ given: approaching or smooth contacts only; relative normal
+        # velocities below one step of gravity count as smooth (persistent): bodies resting on each other
+        # differ by round-off-sized amounts in their pre-impact velocities, which must not switch resting
+        # contacts off
+        smooth = float(np.linalg.norm(o.gravity)) * dt
+        uu_all = np.ascontiguousarray(u_minus) if u_minus is not None else None
         parts = []
         # obstacles: segment end points (Sobottka §8.6.5: end points suffice at this segment length)
         if obstacles:
@@ -720,31 +782,37 @@ class ChainSolver:
                 keep = _unique_joint_contacts(pairs, params, model)
                 pairs, params = pairs[keep], params[keep]
             if len(pairs):
-                a, b = pairs[:, 0], pairs[:, 1]
-                ca = x[a] + ((2 * params[:, 0] - 1) * h[a])[:, None] * d3[a]
-                cb = x[b] + ((2 * params[:, 1] - 1) * h[b])[:, None] * d3[b]
-                dv = ca - cb
-                dist = np.linalg.norm(dv, axis=1)
-                n = np.empty_like(dv)
-                ok = dist > 1e-12
-                n[ok] = dv[ok] / dist[ok, None]
-                if (~ok).any():
-                    c = np.cross(d3[a[~ok]], d3[b[~ok]])
-                    cn = np.linalg.norm(c, axis=1, keepdims=True)
-                    n[~ok] = np.where(cn > 1e-12, c / np.maximum(cn, 1e-300), [0.0, 1.0, 0.0])
-                gap = dist - r[a] - r[b]
-                keep = gap < 0.5 * o.contact_band * (r[a] + r[b]) + margin + 0.75 * (spd[a] + spd[b]) * dt
-                a, b, ca, cb, n, gap = a[keep], b[keep], ca[keep], cb[keep], n[keep], gap[keep]
-                pa = ca - r[a, None] * n
-                pb = cb + r[b, None] * n
-                z = np.zeros(len(a), bool)
+                P = len(pairs)
+                a, b = np.empty(P, np.int64), np.empty(P, np.int64)
+                n, la, lb = np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
+                gap, tight = np.empty(P), np.empty(P, np.bool_)
+                coupled = o.contact_coupling == "coupled"
+                uu = np.ascontiguousarray(u_minus) if u_minus is not None else np.zeros((0, 6))
+                k = KP.fibre_pair_rows(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(params, np.float64),
+                                       np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r,
+                                       np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin),
+                                       float(dt), uu, CLOSING_MARGIN_FACTOR, coupled, smooth, a, b, n, la, lb, gap,
+                                       tight)
+                a, b, n, la, lb, gap, tight = a[:k], b[:k], n[:k], la[:k], lb[:k], gap[:k], tight[:k]
+                z = np.zeros(k, bool)
                 S = model.n_segments
-                parts.append(_Rows(a, b, n, pa - x[a], pb - x[b], gap, z, ~z, a * S + b))
-                parts.append(_Rows(b, a, -n, pb - x[b], pa - x[a], gap, z, z, b * S + a))
+                if coupled:  # one row per pair (the coupled solve applies equal and opposite impulses)
+                    parts.append(_Rows(a, b, n, la, lb, gap, z, ~z, a * S + b, tight))
+                else:
+                    parts.append(_Rows(a, b, n, la, lb, gap, z, ~z, a * S + b))
+                    parts.append(_Rows(b, a, -n, lb, la, gap, z, z, b * S + a))
+        if u_minus is not None:  # persistence filter of the obstacle rows (the fibre rows' is in the kernel)
+            for i, p in enumerate(parts):
+                if p.obstacle.all() and len(p.body):
+                    vn = np.empty(len(p.body))
+                    KP.row_normal_velocity(p.body, p.partner, p.normal, p.lever, p.partner_lever, uu_all, vn)
+                    keep = vn <= smooth
+                    if not keep.all():
+                        parts[i] = _Rows(*[getattr(p, k)[keep] for k in _Rows.__dataclass_fields__])
         if not parts:
             z = np.zeros((0, 3))
             return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
-                         np.zeros(0, bool), np.zeros(0, np.int64))
+                         np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0, bool))
         return _Rows(*[np.concatenate([getattr(p, k) for p in parts]) for k in _Rows.__dataclass_fields__])
 
     def _obstacle_interior(self, ob, model, x, d3, margin, dt, oi=0, samples: int = 9):
@@ -862,6 +930,7 @@ class ChainSolver:
         fib = model.segment_fibre
         touched = np.zeros(model.n_fibres, bool)
         touched[fib[rows.body]] = True
+        touched[fib[rows.partner[rows.partner >= 0]]] = True
         seg = np.nonzero(touched[fib])[0]
         is_root = model.is_root[seg]
         keep = ~is_root | model.anchored[fib[seg]]
@@ -895,28 +964,34 @@ class ChainSolver:
             return u_minus
         if o.contact_coupling == "coupled":
             u = np.ascontiguousarray(u_minus.copy())
-            pr = np.nonzero(rows.primary)[0]
+            if self._gathered is None or self._gathered[0] is not rows:  # once per detection
+                pr, n_rows = _kernel_rows(rows)
+                geo = tuple(np.ascontiguousarray(a[pr]) for a in (rows.body, rows.partner, rows.normal, rows.lever,
+                                                                   rows.partner_lever))
+                self._gathered = (rows, pr, n_rows, geo)
+            _, pr, n_rows, geo = self._gathered
             gp = gaps[pr]
             tg = np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt))
             mc, ms = self._mu
             if warm is None:
                 lam_p, fr_p = np.zeros(len(pr)), np.zeros((len(pr), 2))
             else:
-                lam_p, fr_p = warm[0].copy(), warm[1].copy()
+                lam_p, fr_p = warm[0][pr], np.ascontiguousarray(warm[1][pr])
             jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt, u_minus)
             chain_start = np.ones(len(jk), bool)
             chain_start[1:] = jk[1:] != jl[:-1]
             chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
             kern = KC.project_coupled_parallel if model.n_segments >= o.parallel_threshold else KC.project_coupled
-            sw, self._residual = kern(rows.body[pr], rows.partner[pr], np.ascontiguousarray(rows.normal[pr]),
-                      np.ascontiguousarray(rows.lever[pr]), np.ascontiguousarray(rows.partner_lever[pr]),
-                      np.ascontiguousarray(tg), u, model.mass, R_mid, model.inertia, mc, ms,
+            sw, self._residual, promoted = kern(*geo, np.ascontiguousarray(tg), u, self._writable(model.mass), R_mid, self._writable(model.inertia), mc, ms,
                       float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p, fr_p,
-                      jk, jl, jrk, jrl, jt, jc, jw0, chain_off)
+                      jk, jl, jrk, jrl, jt, jc, jw0, chain_off, n_rows)
             lam[:] = 0.0
             lam[pr] = lam_p
             sweeps_box[0] = max(sweeps_box[0], int(sw))
-            self._impulses = (lam_p, fr_p)
+            self._row_counts = (n_rows, int(promoted))
+            fr = np.zeros((len(lam), 2))
+            fr[pr] = fr_p
+            self._impulses = (lam.copy(), fr)
             return u
         u = u_minus
         for sweep in range(o.contact_sweeps):
@@ -926,19 +1001,19 @@ class ChainSolver:
         return u
 
     def _warm_start_impulses(self, rows):
-        """(λ, friction) of the primary rows: :data:`WARM_START_FRACTION` of the previous step's solution of
-        the same contacts (same key; 0 for new contacts), or None without a previous solution (coupled
-        mode only)."""
+        """(λ, friction) per row: :data:`WARM_START_FRACTION` of the previous step's solution of the same
+        contacts (same key; 0 for new contacts and non-primary rows), or None without a previous solution
+        (coupled mode only)."""
         if self._warm is None or self.options.contact_coupling != "coupled":
             return None
         keys, lam0, fr0 = self._warm
-        pr = np.nonzero(rows.primary)[0]
-        k = rows.key[pr]
+        k = rows.key
         if not len(keys) or not len(k):
             return None
         i = np.clip(np.searchsorted(keys, k), 0, len(keys) - 1)
         hit = keys[i] == k
         f = WARM_START_FRACTION
+        hit &= rows.primary
         lam = np.where(hit, f * lam0[i], 0.0)
         fr = np.where(hit[:, None], f * fr0[i], 0.0)
         return lam, np.ascontiguousarray(fr)
@@ -965,6 +1040,7 @@ class ChainSolver:
         newton = 0
         sweeps_box = [0]
         u_end = None
+        promoted = 0
         for it in range(o.harmonisation_iterations):
             t0 = time.perf_counter()
             vJ, wJ, nit, _ = self._joints(model, x, R, v, w, dt, dx_extra, dth_extra)
@@ -979,48 +1055,45 @@ class ChainSolver:
             if rows is None:
                 self._speed = np.linalg.norm(u_minus[:, :3], axis=1) + model.half_length * np.linalg.norm(
                     u_minus[:, 3:], axis=1)
-                rows = self._detect(model, x_mid, R_mid, dt, obstacles)
+                rows = self._detect(model, x_mid, R_mid, dt, obstacles, u_minus)
                 secs["detection"] += time.perf_counter() - t2
                 t2 = time.perf_counter()
-                Iwi = _inv_inertia_world(model, R_mid)
-                # persistence filter (eq. 8.9): approaching or smooth contacts only
-                ua = u_minus[rows.body, :3] + np.cross(u_minus[rows.body, 3:], rows.lever)
-                pb = np.maximum(rows.partner, 0)
-                ub = np.where(rows.obstacle[:, None], 0.0,
-                              u_minus[pb, :3] + np.cross(u_minus[pb, 3:], rows.partner_lever))
-                # relative normal velocities below one step of gravity count as smooth (persistent):
-                # bodies resting on each other differ by round-off-sized amounts in their pre-impact
-                # velocities, which must not switch resting contacts off
-                smooth = np.linalg.norm(g) * dt
-                keep = ((ua - ub) * rows.normal).sum(1) <= smooth
-                rows = _Rows(*[getattr(rows, k)[keep] for k in _Rows.__dataclass_fields__])
-                # per body: fibre rows first, obstacle rows last (a static obstacle wins a conflict)
-                order = np.lexsort((rows.obstacle, rows.body))
-                bodies, starts = np.unique(rows.body[order], return_index=True)
-                row_off = np.append(starts, len(order)).astype(np.int64)
-                bodies = bodies.astype(np.int64)
+                Iwi = _inv_inertia_world(model, R_mid) if o.contact_coupling == "per-body" else None
+                # (persistence filter, eq. 8.9: in _detect)
+                if o.contact_coupling == "coupled":  # one Gauss–Seidel over all rows: no per-body grouping
+                    order = row_off = None
+                    bodies = rows.body
+                else:  # per body: fibre rows first, obstacle rows last (a static obstacle wins a conflict)
+                    order = np.lexsort((rows.obstacle, rows.body))
+                    bodies, starts = np.unique(rows.body[order], return_index=True)
+                    row_off = np.append(starts, len(order)).astype(np.int64)
+                    bodies = bodies.astype(np.int64)
                 lam = np.zeros(len(rows.body))
             if it == 0:
                 gaps = rows.gap.copy()
             else:  # contact points move with the bodies: first-order gap change of the new mid state
-                dxa = x_mid[rows.body] - x_mid0[rows.body]
-                dpa = dxa + np.cross(0.5 * dt * (w_mid - w_mid0)[rows.body], rows.lever)
-                pb = np.maximum(rows.partner, 0)
-                dpb = np.where(rows.obstacle[:, None], 0.0,
-                               x_mid[pb] - x_mid0[pb] + np.cross(0.5 * dt * (w_mid - w_mid0)[pb], rows.partner_lever))
-                gaps = rows.gap + ((dpa - dpb) * rows.normal).sum(1)
+                dq = np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_mid - w_mid0)], axis=1)
+                gaps = np.empty(len(rows.body))
+                KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
+                gaps += rows.gap
             if it == 0:
                 x_mid0, w_mid0 = x_mid.copy(), w_mid.copy()
             if it == 0:
                 warm = self._warm_start_impulses(rows) if o.warm_start else None
+                if warm is not None:  # a contact that carried an impulse last step is a row from the start
+                    rows.tight |= warm[0] > 0
             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                    sweeps_box, x_mid, warm)
             vel_impulses = self._impulses
+            promoted += self._row_counts[1]
             u_pos = u_vel
-            if o.penetration_recovery > 0 and (gaps < 0).any():
+            last = it + 1 == o.harmonisation_iterations
+            if last and o.penetration_recovery > 0 and (gaps < 0).any():
                 # split impulse: the penetration push-out moves the positions but is not kept as velocity
+                # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
                 u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
                                        R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm)
+                promoted += self._row_counts[1]
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
@@ -1029,9 +1102,9 @@ class ChainSolver:
                 dth_extra = 0.5 * dt * dc[:, 3:]
         sweeps_max = sweeps_box[0]
         if o.warm_start and vel_impulses is not None:
-            pr = np.nonzero(rows.primary)[0]
-            order_k = np.argsort(rows.key[pr])
-            self._warm = (rows.key[pr][order_k], vel_impulses[0][order_k], vel_impulses[1][order_k])
+            pr = np.nonzero(vel_impulses[0] > 0)[0]
+            order_k = pr[np.argsort(rows.key[pr])]
+            self._warm = (rows.key[order_k], vel_impulses[0][order_k], vel_impulses[1][order_k])
         else:
             self._warm = None
         t3 = time.perf_counter()
@@ -1059,6 +1132,10 @@ class ChainSolver:
         st.max_joint_gap = float(joint_gaps(model, new).max(initial=0.0))
         active = (lam > 0) & (rows.primary | (o.contact_coupling == "per-body")) if len(lam) else np.zeros(0, bool)
         st.contacts = int(active.sum())
+        if o.contact_coupling == "coupled" and len(lam):
+            st.candidate_rows = int((rows.primary & ~rows.tight).sum())
+            st.contact_rows = int((rows.primary & rows.tight).sum()) + self._row_counts[1]
+            st.promoted_rows = promoted
         st.obstacle_contacts = int((active & rows.obstacle).sum())
         st.fibre_contacts = st.contacts - st.obstacle_contacts
         st.max_penetration = float(max(0.0, -rows.gap.min(initial=0.0)))

@@ -235,7 +235,7 @@ def _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inert
 
 def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                           restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl,
-                          joint_target, joint_compliance_inv, joint_w0, chain_off):
+                          joint_target, joint_compliance_inv, joint_w0, chain_off, n_listed_rows=-1):
     """Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
     ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
     λ_c·conv{μ_β d_β} per contact (frame t₁ from body A's axis) solved by exact 2-D block solves
@@ -255,7 +255,15 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
     chain's 6·n_j rows exactly (block Thomas, factorised once here), then the contacts (symmetric
     order; partial sweeps over the rows that carry an impulse or are close to their bound in between, see
     the schedule below). Stops when, in a full sweep, the largest impulse change (as a velocity, m/s) and
-    the largest joint gap-rate residual fall below ``tol``. Returns the sweeps used and that last change, m/s."""
+    the largest joint gap-rate residual fall below ``tol``.
+
+    Reserve rows: only the first ``n_listed_rows`` contacts (−1: all) are rows from the start; the others
+    are candidates (speculative pairs that were not closing fast enough at u⁻ to need a row) and take no
+    part until a full sweep finds their bound violated at the current u (the pair would now close its gap
+    within the step): they are then set up and join the iteration. The iteration does not stop on a full
+    sweep that added rows: up to ``max_iter`` extra sweeps are run for them (the last sweep is full, so no
+    candidate ends violated unless that cap is hit). Returns the sweeps used, the last change (m/s) and
+    the number of candidates that became rows."""
     nc = body.shape[0]
     m = mu_cos.shape[0]
     MA = np.empty((nc, 3, 6))  # every entry is written by _contact_rows
@@ -263,7 +271,11 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
     JA = np.empty((nc, 3, 6))
     JB = np.empty((nc, 3, 6))
     W = np.empty((nc, 3, 3))
-    for c in prange(nc):
+    n_on = nc if n_listed_rows < 0 else min(n_listed_rows, nc)
+    rowid = np.arange(nc)  # rowid[:n_on]: the contacts that are rows, in sweep order
+    is_row = np.zeros(nc, np.bool_)
+    is_row[:n_on] = True
+    for c in prange(n_on):
         Iw = np.empty((3, 3))
         _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W, Iw)
     nj = joint_k.shape[0]
@@ -291,8 +303,11 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
         for c in range(nc):
             fr[c, 0] = 0.0
             fr[c, 1] = 0.0
-    # warm start: apply the initial impulses (the first joint sweep then re-closes the joints)
+    # warm start: apply the initial impulses (the first joint sweep then re-closes the joints); candidates
+    # start without impulse
     for c in range(nc):
+        if c >= n_on:
+            lam[c] = 0.0
         if lam[c] < 0.0:
             lam[c] = 0.0
         if lam[c] == 0.0:
@@ -315,6 +330,10 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
     Bl = np.zeros((2, 2))
     cl = np.zeros(2)
     vr = np.zeros(3)
+    Iw1 = np.empty((3, 3))
+    promoted = 0
+    n_prom = 0
+    sweep_cap = max_iter
     # sweep schedule: a full sweep visits every row; the partial sweeps in between visit only the rows
     # that carry an impulse or were within ``slack_band`` of their bound in the last full sweep (a row
     # with λ = 0 whose bound holds is left unchanged by a Gauss–Seidel visit, so skipping it changes
@@ -327,9 +346,9 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
     last_full_change = np.inf
     it = 0
     change = 0.0
-    while it < max_iter:
+    while it < sweep_cap:
         it += 1
-        if it == max_iter:
+        if it == sweep_cap:
             full = True
         change = 0.0
         for ch in prange(nch):
@@ -339,12 +358,12 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
         for ch in range(nch):
             if chain_worst[ch] > change:
                 change = chain_worst[ch]
-        n_rows = nc if full else n_listed
+        n_rows = n_on if full else n_listed
         slack_band = max(10.0 * tol, last_full_change)
         n_new = 0
         for q in range(n_rows):
             qq = q if it % 2 == 1 else n_rows - 1 - q  # symmetric Gauss–Seidel
-            c = qq if full else listed[qq]
+            c = rowid[qq] if full else listed[qq]
             a = body[c]
             b = partner[c]
             s = 0.0
@@ -407,10 +426,39 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
                 change = max(change, np.sqrt(dx * dx * Bl[0, 0] + dy * dy * Bl[1, 1]))
             fr[c, 0] = nx
             fr[c, 1] = ny
+        n_prom = 0
+        if full and n_on < nc:
+            # candidates whose bound the current velocities violate become rows
+            for c in range(nc):
+                if is_row[c]:
+                    continue
+                a = body[c]
+                b = partner[c]
+                n = normal[c]
+                r = lever[c]
+                s = (n[0] * (u[a, 0] + u[a, 4] * r[2] - u[a, 5] * r[1]) + n[1] * (u[a, 1] + u[a, 5] * r[0] - u[a, 3] * r[2])
+                     + n[2] * (u[a, 2] + u[a, 3] * r[1] - u[a, 4] * r[0]))
+                if b >= 0:
+                    r = partner_lever[c]
+                    s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1])
+                          + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
+                          + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
+                if s < target[c]:
+                    _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB,
+                                  W, Iw1)
+                    is_row[c] = True
+                    rowid[n_on] = c
+                    n_on += 1
+                    listed[n_new] = c
+                    n_new += 1
+                    n_prom += 1
+            promoted += n_prom
+            if n_prom > 0 and it >= sweep_cap - 1 and sweep_cap < 2 * max_iter:
+                sweep_cap = min(it + 9, 2 * max_iter)  # sweeps for the new rows, the last one full
         if full:
             n_listed = n_new
             last_full_change = change
-            if change <= tol:
+            if change <= tol and n_prom == 0:
                 break
             full = False
             since_full = 0
@@ -426,7 +474,7 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
         lam_out[c] = lam[c]
         fr_out[c, 0] = fr[c, 0]
         fr_out[c, 1] = fr[c, 1]
-    return it, change
+    return it, change, promoted
 
 
 project_coupled = njit(cache=True)(_project_coupled_impl)

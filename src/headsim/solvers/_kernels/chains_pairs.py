@@ -1,0 +1,110 @@
+"""Numba kernels that turn fibre–fibre closest-point pairs into contact rows and evaluate rows' relative
+normal velocities for the chain solver (:mod:`headsim.solvers.chains`; Sobottka 2008 §8.4, eqs. 8.7, 8.9).
+
+Conventions as in :mod:`headsim.solvers._kernels.chains`: twists u = (v, ω) (m/s, rad/s, world frame);
+segment s has centre x_s, axis d3_s and half length h_s; a contact point's velocity is v + ω × r with r
+the lever from the centre (eq. 8.7).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
+                    mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
+    """Contact rows of closest-point pairs (pairs (P, 2) segment ids, params (P, 2) axis parameters in
+    [0, 1]). Per pair: closest points c_a, c_b, normal n = (c_a − c_b)/‖·‖ (the axes' cross product for
+    touching axes, +y for parallel touching ones), gap g = ‖c_a − c_b‖ − r_a − r_b, contact points
+    p_a = c_a − r_a n, p_b = c_b + r_b n and levers p − x. A pair is kept when
+    g < band + 0.75 (speed_a + speed_b) Δt with band = ½ band_fraction (r_a + r_b) + margin (m; speed
+    (S,) m/s: each segment's |v| + h|ω|), and marked ``tight`` when g < band + closing_factor · c Δt
+    with c = max(0, −n·(u_a(p_a) − u_b(p_b))) the normal closing speed of the twists u (S, 6) (only with
+    ``mark_tight``; otherwise, and for an empty u, every kept pair is tight). With u given, pairs that
+    separate faster than ``smooth`` (m/s, n·(u_a − u_b) > smooth) are dropped (persistence filter, eq. 8.9). Writes the kept rows compactly to the outputs (length ≥ P) and
+    returns their number."""
+    k = 0
+    have_u = u.shape[0] > 0
+    for q in range(pairs.shape[0]):
+        a = pairs[q, 0]
+        b = pairs[q, 1]
+        ta = (2.0 * params[q, 0] - 1.0) * half[a]
+        tb = (2.0 * params[q, 1] - 1.0) * half[b]
+        dv0 = x[a, 0] + ta * d3[a, 0] - x[b, 0] - tb * d3[b, 0]
+        dv1 = x[a, 1] + ta * d3[a, 1] - x[b, 1] - tb * d3[b, 1]
+        dv2 = x[a, 2] + ta * d3[a, 2] - x[b, 2] - tb * d3[b, 2]
+        dist = np.sqrt(dv0 * dv0 + dv1 * dv1 + dv2 * dv2)
+        ra = radius[a]
+        rb = radius[b]
+        gap = dist - ra - rb
+        band = 0.5 * band_fraction * (ra + rb) + margin
+        if not gap < band + 0.75 * (speed[a] + speed[b]) * dt:
+            continue
+        if dist > 1e-12:
+            n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
+        else:
+            c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
+            c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
+            c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
+            cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            if cn > 1e-12:
+                n0, n1, n2 = c0 / cn, c1 / cn, c2 / cn
+            else:
+                n0, n1, n2 = 0.0, 1.0, 0.0
+        la0 = ta * d3[a, 0] - ra * n0
+        la1 = ta * d3[a, 1] - ra * n1
+        la2 = ta * d3[a, 2] - ra * n2
+        lb0 = tb * d3[b, 0] + rb * n0
+        lb1 = tb * d3[b, 1] + rb * n1
+        lb2 = tb * d3[b, 2] + rb * n2
+        tight = True
+        if have_u:
+            va0 = u[a, 0] + u[a, 4] * la2 - u[a, 5] * la1
+            va1 = u[a, 1] + u[a, 5] * la0 - u[a, 3] * la2
+            va2 = u[a, 2] + u[a, 3] * la1 - u[a, 4] * la0
+            vb0 = u[b, 0] + u[b, 4] * lb2 - u[b, 5] * lb1
+            vb1 = u[b, 1] + u[b, 5] * lb0 - u[b, 3] * lb2
+            vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
+            closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
+            if -closing > smooth:
+                continue
+            if closing < 0.0:
+                closing = 0.0
+            if mark_tight:
+                tight = gap < band + closing_factor * closing * dt
+        a_out[k] = a
+        b_out[k] = b
+        n_out[k, 0] = n0
+        n_out[k, 1] = n1
+        n_out[k, 2] = n2
+        la_out[k, 0] = la0
+        la_out[k, 1] = la1
+        la_out[k, 2] = la2
+        lb_out[k, 0] = lb0
+        lb_out[k, 1] = lb1
+        lb_out[k, 2] = lb2
+        gap_out[k] = gap
+        tight_out[k] = tight
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def row_normal_velocity(body, partner, normal, lever, partner_lever, u, out):
+    """out[c] = n_c · (u_A(p_A) − u_B(p_B)) (m/s) for rows c with bodies A = body, B = partner (−1: a static
+    obstacle, zero velocity) and their levers, for twists u (S, 6). With u = (Δx, Δθ) per body it is the
+    first-order change of the rows' gaps (m)."""
+    for c in range(body.shape[0]):
+        a = body[c]
+        n = normal[c]
+        r = lever[c]
+        s = (n[0] * (u[a, 0] + u[a, 4] * r[2] - u[a, 5] * r[1]) + n[1] * (u[a, 1] + u[a, 5] * r[0] - u[a, 3] * r[2])
+             + n[2] * (u[a, 2] + u[a, 3] * r[1] - u[a, 4] * r[0]))
+        b = partner[c]
+        if b >= 0:
+            r = partner_lever[c]
+            s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1]) + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
+                  + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
+        out[c] = s
