@@ -109,7 +109,9 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   and at 8 N on the coarse problem no skin carries 0 < p <= the therapy pressure
   (``test_aperture_rules`` needs one). (A cold 30 N fit of the demo configuration fails with the
   kept planes too, in the first solve from first contact: |g| 0.58 N against 0.03 N after 40
-  Newton iterations.) The alternating (concave / kinked) vertices are the residual
+  Newton iterations.) ``headsim demo`` with it: no strict seal up to 30 N, least force with an
+  acceptable leak 10 N; leak 5.3 / 7.2 / 14.5 / 27.2 / 32.3 L/min at 10 / 20 / 25 / 27.5 /
+  28.75 N (rising with force), then "solve-failed". The alternating (concave / kinked) vertices are the residual
   obstacle. A consistent contact needs a smooth (or
   curvature-aware) distance to the cushion, e.g. a smoothed surface or an IPC-type barrier, and
   the symmetric (cushion-into-skin) pass; until then the nonlinear seal/leak answer on the
