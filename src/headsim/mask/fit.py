@@ -71,7 +71,48 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   evaluation (with triangle normals the line search fails, |g| 0.2 N; with shortest-way-out
   normals |g| 0.05 N after 150 Newton iterations against 0.015 N, with vertex-interpolated
   normals the line search fails at |g| 0.08 N after 44: the polyhedral cushion's
-  distance is not smooth enough for Newton). A consistent contact needs a smooth (or
+  distance is not smooth enough for Newton); a hysteresis refresh (issue 6, second attempt:
+  at each contact update a kept plane is replaced by the tangent plane at the vertex's current
+  projection on the cushion only when its point lies farther than delta from that projection or
+  its normal tilts more than a set angle; delta = 0.5 x skin edge = 1 mm on the coarse test
+  problem, from the gap-error bound delta^2 / 2R <= 0.1 x edge for a section radius R ~ 3 mm; the
+  outer loop stops when the penetration force the update moves is below its tolerance). Coarse
+  test problem at 15 N, against the kept planes (67 phantom contacts up to 1.78 mm out, 34 beyond
+  0.1 x edge, carrying 7.1 of 15 N; skin up to 0.66 mm deeper than p / kappa, 21 beyond; 1.6 s):
+  with triangle normals (20 deg) it cycles for 40 updates, each moving 1-400 N (one replaced plane
+  moves ~1 mm of gap = ~8 N at kappa a = 8.3 kN/m, so the loop stops only when no plane is
+  replaced); with vertex-interpolated (Phong) normals a fixed 2-cycle of 15 vertices, 180-216 N per
+  update; delta = 0.25 x edge and 10 deg (also holding the planes of near, untouched skin)
+  cycles at 100-400 N. Only a cap (a plane refreshed 3-8 times in a solve is frozen) ends it, in
+  9-14 updates and 5-15x the CPU time (7-24 s): then the phantom contacts shrink (Phong normals,
+  projected along the normal field, cap 8: 46, max 0.16 mm, none beyond 0.1 x edge, 4.3 of 15 N)
+  but the frozen planes leave 4-13 vertices 0.5-1.0 mm inside the cushion with no pressure (true-
+  depth force 107-136 N; under-relaxing the plane point half way did not help). The cycling ones
+  are always the same ~8: three on the front (normal . approach 0.95) and five on the cushion's
+  steep side wall (0.02-0.2), each resting on its plane (gap -0.01 mm) 0.3-1 mm inside while its
+  plane point lies 1-2.6 mm from its projection -- where the polyhedral skin-side surface is
+  concave or kinked, two tangent planes alternate and no single lagged plane is a fixed point.
+  Demo configuration, 4 mm, capped at 8: 15 N leaks 4.8 L/min, 116 skin vertices inside (max
+  1.18 mm, true-depth force 9.7 x F), 46 phantom (max 0.25 mm) carrying 26 % of F, 13 s CPU
+  against ~2 s. Keeping the previous plane of a refreshed vertex as a second constraint while the
+  vertex is inside the closed cushion (a concave corner needs both), refreshing planes of skin
+  inside the cushion that say "free", Phong normals, cap 12, 24 updates allowed (commit 5f120f5 of
+  branch ``planes``, reverted): the coarse 15 N fit converges in 11 updates / 54 Newton iterations
+  (7.6 s CPU against 1.6 s) and passes the strict test (45 phantom, max 0.12 mm, 4.6 of 15 N;
+  inside at most 0.16 mm beyond p / kappa, true-depth force 38 N); demo configuration at 15 N
+  leaks 3.1 L/min, 99 inside (max 0.26 mm, 4.1 x F), 48 phantom (max 0.16 mm, 29 % of F: the
+  pressure now sits within 0.1 x edge of where the bodies touch, but a third of the strap force
+  is still carried by skin 0-0.16 mm in front of the cushion); but the cold 15 N fit of
+  ``bench_mask.py --quick`` costs 16.2 s CPU (15 updates, 73 Newton iterations; goal 10 s; 3.4 s
+  with the kept planes), its seal search 89 s (16.5 s) and stops after 28.75 N "solve-failed"
+  where the kept planes reach 30 N, the warm 15 -> 30 N step of the consistency benchmark fails,
+  and at 8 N on the coarse problem no skin carries 0 < p <= the therapy pressure
+  (``test_aperture_rules`` needs one). (A cold 30 N fit of the demo configuration fails with the
+  kept planes too, in the first solve from first contact: |g| 0.58 N against 0.03 N after 40
+  Newton iterations.) ``headsim demo`` with it: no strict seal up to 30 N, least force with an
+  acceptable leak 10 N; leak 5.3 / 7.2 / 14.5 / 27.2 / 32.3 L/min at 10 / 20 / 25 / 27.5 /
+  28.75 N (rising with force), then "solve-failed". The alternating (concave / kinked) vertices are the residual
+  obstacle. A consistent contact needs a smooth (or
   curvature-aware) distance to the cushion, e.g. a smoothed surface or an IPC-type barrier, and
   the symmetric (cushion-into-skin) pass; until then the nonlinear seal/leak answer on the
   contoured cushion is not trustworthy, and the strict xfail test
