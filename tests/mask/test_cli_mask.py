@@ -62,6 +62,10 @@ def test_mask_fit_writes_the_report(tmp_path, capsys):
     assert data["fit"]["force_balance_error"] < 0.01
     assert ("SEALED" in stdout) == data["fit"]["sealed"]
     assert f"leak {data['leak_flow_lpm']:.2f} L/min" in stdout and data["leak_threshold_lpm"] == 24.0
+    check = data["contact_check"]  # the geometric contact check of the nonlinear fit, warned about when failed
+    assert check["consistent"] == (check["max_phantom_gap"] <= check["tolerance"]
+                                   and check["max_excess_depth"] <= check["tolerance"])
+    assert ("warning: contact check" in err) == (not check["consistent"])
     from headsim.cli import mask_cmd
     from headsim.mask.leak import LARGE_LEAK_LPM
 
@@ -74,7 +78,7 @@ def test_condensed_mode_fit_writes_the_report(tmp_path, capsys):
                               "--leak-threshold", "500", "--out", str(out)], capsys)
     assert code in (0, None), err
     data = json.loads((out / "result.json").read_text())
-    assert data["fit"]["solver_mode"] == "condensed"
+    assert data["fit"]["solver_mode"] == "condensed" and data["contact_check"] is None
     assert data["leak_threshold_lpm"] == 500.0 and data["leak_acceptable"] == (data["leak_flow_lpm"] <= 500.0)
     assert data["fit"]["force_balance_error"] < 1e-9
     assert "condensed" in (out / "report.html").read_text()

@@ -136,7 +136,7 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
     """Press MASK onto FACE with strap force FORCE (N); write pressures, seal, leaks and the leak flow."""
     from headsim.cli._common import atomic_output_dir
     from headsim.mask.fit import check_force, problem_fit
-    from headsim.mask.report import write_fit_report
+    from headsim.mask.report import fit_contact_check, write_fit_report
 
     check_force(force)
     _check_mode(mode, friction)
@@ -150,12 +150,21 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
         else:
             result = problem_fit(problem, force)
         bar.update(1)
+    check = fit_contact_check(problem, result)
     with atomic_output_dir(out) as tmp:
-        write_fit_report(tmp, problem, result)
+        write_fit_report(tmp, problem, result, contact_check=check)
     s = result.summary
     typer.echo(f"{'SEALED' if result.sealed else 'LEAKS'} at {force:g} N: contact force {result.contact_force:.3f} N, "
                f"area {s.contact_area_cm2:.2f} cm², peak {s.peak_pressure / 1e3:.1f} kPa, mean "
                f"{s.mean_pressure / 1e3:.1f} kPa; {_leak_text(result)} -> {out}/report.html")
+    _echo_check(check, force)
+
+
+def _echo_check(check, force: float) -> None:
+    """Print the contact check's warning (stderr) when the fitted contact is inconsistent."""
+    warning = None if check is None else check.warning(force)
+    if warning:
+        typer.echo("warning: " + warning, err=True)
 
 
 def _leak_text(result) -> str:
@@ -168,7 +177,7 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from headsim.cli._common import atomic_output_dir
-    from headsim.mask.report import write_fit_report
+    from headsim.mask.report import fit_contact_check, write_fit_report
     from headsim.mask.search import SearchOptions, least_seal_force
 
     opts = SearchOptions(start=start, maximum=maximum, abs_tol=tol)
@@ -180,8 +189,9 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
             bar.update(task, completed=done, msg=msg)
 
         result = least_seal_force(problem, opts, progress=progress, mode=mode)
+    check = fit_contact_check(problem, result.fit)
     with atomic_output_dir(out) as tmp:
-        write_fit_report(tmp, problem, result.fit, result)
+        write_fit_report(tmp, problem, result.fit, result, contact_check=check)
     if result.seal_force is None:
         typer.echo(f"{problem.mask.name} does not seal up to {maximum:g} N ({result.n_solves} fits, "
                    f"{result.seconds:.1f} s; at {result.fit.force:g} N: {_leak_text(result.fit)})")
@@ -200,6 +210,7 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
         typer.echo(f"least force with an acceptable leak (<= {thr:g} L/min, estimate): {result.leak_force:.2f} N "
                    f"(largest with more leak: {lo}; leak at {result.leak_force:.2f} N: {result.leak_fit.leak_flow_lpm:.2f} L/min; "
                    f"{result.leak_solves} extra fits) -> {out}/report.html")
+    _echo_check(check, result.fit.force)
     return result
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from headsim.mask.contact_check import ContactConsistency, contact_consistency
 from headsim.mask.fit import FitProblem, FitResult
 from headsim.mask.search import SearchResult
 
@@ -52,8 +53,15 @@ def _seal_edge(problem: FitProblem, fit: FitResult) -> np.ndarray:
     return np.flatnonzero(edge)
 
 
-def result_dict(problem: FitProblem, fit: FitResult, search: SearchResult | None = None) -> dict:
-    """Everything for ``result.json`` (report units: N, cm^2, kPa, mm)."""
+def fit_contact_check(problem: FitProblem, fit: FitResult) -> ContactConsistency | None:
+    """The geometric contact check of a nonlinear fit (:mod:`headsim.mask.contact_check`); None for
+    the condensed mode, whose linear complementarity contact has no lagged planes."""
+    return contact_consistency(problem, fit) if fit.mode == "nonlinear" else None
+
+
+def result_dict(problem: FitProblem, fit: FitResult, search: SearchResult | None = None,
+                contact_check: ContactConsistency | None = None) -> dict:
+    """Everything for ``result.json`` (report units: N, cm^2, kPa, mm; ``contact_check`` in m, N)."""
     out = {
         "headsim_result": "mask-fit" if search is None else "mask-seal-force",
         "problem": problem.describe(),
@@ -64,6 +72,7 @@ def result_dict(problem: FitProblem, fit: FitResult, search: SearchResult | None
         "leak_acceptable": fit.leak_acceptable,
         "leak_threshold_lpm": problem.options.leak_threshold_lpm,
         "fit": fit.as_dict(),
+        "contact_check": None if contact_check is None else contact_check.as_dict(),
         "sanity_note": SANITY_NOTE,
     }
     if search is not None:
@@ -249,18 +258,21 @@ def _png(out: Path, problem: FitProblem, fit: FitResult, search: SearchResult | 
 
 
 def write_fit_report(out_dir: str | Path, problem: FitProblem, fit: FitResult,
-                     search: SearchResult | None = None) -> Path:
+                     search: SearchResult | None = None, contact_check: ContactConsistency | None = None) -> Path:
     """Write report.html, result.json, PNGs and the deformed meshes into ``out_dir`` (module doc).
 
     ``out_dir`` should be a fresh folder (the CLI passes the temporary folder of
     :func:`headsim.cli._common.atomic_output_dir`, so a failure leaves no partial output).
+    ``contact_check``: :func:`fit_contact_check` of ``fit`` (computed here when not given).
     """
+    if contact_check is None:
+        contact_check = fit_contact_check(problem, fit)
     from headsim.mesh.io import save_surface, save_tetmesh
     from headsim.report.html import write_html_report
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "result.json").write_text(json.dumps(result_dict(problem, fit, search), indent=2, default=float))
+    (out / "result.json").write_text(json.dumps(result_dict(problem, fit, search, contact_check), indent=2, default=float))
     save_surface(fit.deformed_face, out / "face_deformed.ply")
     save_tetmesh(fit.deformed_mask.tetmesh, out / "mask_deformed.vtu")
     np.savetxt(out / "pressure_kpa.txt", fit.pressure / 1e3, fmt="%.6g",
@@ -280,6 +292,9 @@ def write_fit_report(out_dir: str | Path, problem: FitProblem, fit: FitResult,
              "skin-roughness gap where the skin touches more lightly), limited per channel by the Bernoulli orifice flow "
              "of its narrowest cross-section; judged against the large-leak threshold of CPAP devices (ResMed: 24 L/min "
              "unintentional leak). Orange diamonds mark the channels of that narrowest cross-section."]
+    warning = None if contact_check is None else contact_check.warning(fit.force)
+    if warning:
+        notes.insert(0, "WARNING, " + warning + ".")
     write_html_report(out / "report.html", title=title, figures=figures, numbers=_numbers(problem, fit, search),
                       notes=notes)
     return out
