@@ -599,37 +599,30 @@ def expand_packed(nbox, nmeta, n_target, counters):
 
 
 @njit(cache=True)
-def sort_pairs(pairs, params, n_segments):
-    """Sort contact pairs by (a, b) in O(n + S): counting sort by a, insertion sort by b per a."""
+def _counting_pass(pairs, params, column, n_segments):
+    """One stable counting-sort pass of (pairs, params) by ``pairs[:, column]`` (ids < n_segments)."""
     n = pairs.shape[0]
-    start = np.zeros(n_segments + 1, np.int64)
+    pos = np.zeros(n_segments + 1, np.int64)
     for k in range(n):
-        start[pairs[k, 0] + 1] += 1
+        pos[pairs[k, column] + 1] += 1
     for a in range(n_segments):
-        start[a + 1] += start[a]
-    pos = start[:-1].copy()
+        pos[a + 1] += pos[a]
     out_p = np.empty_like(pairs)
     out_s = np.empty_like(params)
     for k in range(n):
-        a = pairs[k, 0]
-        d = pos[a]
-        pos[a] += 1
-        out_p[d, 0] = a
+        c = pairs[k, column]
+        d = pos[c]
+        pos[c] += 1
+        out_p[d, 0] = pairs[k, 0]
         out_p[d, 1] = pairs[k, 1]
         out_s[d, 0] = params[k, 0]
         out_s[d, 1] = params[k, 1]
-    for a in range(n_segments):
-        for i in range(start[a] + 1, start[a + 1]):
-            b = out_p[i, 1]
-            s0 = out_s[i, 0]
-            s1 = out_s[i, 1]
-            j = i - 1
-            while j >= start[a] and out_p[j, 1] > b:
-                out_p[j + 1, 1] = out_p[j, 1]
-                out_s[j + 1, 0] = out_s[j, 0]
-                out_s[j + 1, 1] = out_s[j, 1]
-                j -= 1
-            out_p[j + 1, 1] = b
-            out_s[j + 1, 0] = s0
-            out_s[j + 1, 1] = s1
     return out_p, out_s
+
+
+@njit(cache=True)
+def sort_pairs(pairs, params, n_segments):
+    """Sort contact pairs by (a, b) in O(n + S): a least-significant-digit radix sort, one stable
+    counting pass by b, then one by a (pairs with equal (a, b) keep their order)."""
+    by_b, s_b = _counting_pass(pairs, params, 1, n_segments)
+    return _counting_pass(by_b, s_b, 0, n_segments)
