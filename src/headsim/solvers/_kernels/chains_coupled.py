@@ -168,23 +168,23 @@ def _chain_sweep(j0, j1, joint_k, joint_l, joint_rk, joint_rl, joint_target, C, 
         for z in range(3):
             Lam[j, z] += dq[j, 3 + z]
         if k >= 0:
-            rk = joint_rk[j]
-            t0 = rk[1] * dq[j, 2] - rk[2] * dq[j, 1] + dq[j, 3]
-            t1 = rk[2] * dq[j, 0] - rk[0] * dq[j, 2] + dq[j, 4]
-            t2 = rk[0] * dq[j, 1] - rk[1] * dq[j, 0] + dq[j, 5]
-            im = 1.0 / mass[k]
-            for z in range(3):
-                u[k, z] += dq[j, z] * im
-                u[k, 3 + z] += Ik[j, z, 0] * t0 + Ik[j, z, 1] * t1 + Ik[j, z, 2] * t2
-        rl = joint_rl[j]
-        t0 = rl[1] * dq[j, 2] - rl[2] * dq[j, 1] + dq[j, 3]
-        t1 = rl[2] * dq[j, 0] - rl[0] * dq[j, 2] + dq[j, 4]
-        t2 = rl[0] * dq[j, 1] - rl[1] * dq[j, 0] + dq[j, 5]
-        im = 1.0 / mass[l]
-        for z in range(3):
-            u[l, z] -= dq[j, z] * im
-            u[l, 3 + z] -= Il[j, z, 0] * t0 + Il[j, z, 1] * t1 + Il[j, z, 2] * t2
+            _apply_joint_impulse(u, k, joint_rk[j], dq, j, Ik, mass, 1.0)
+        _apply_joint_impulse(u, l, joint_rl[j], dq, j, Il, mass, -1.0)
     return worst
+
+
+@njit(cache=True, inline="always")
+def _apply_joint_impulse(u, b, r, dq, j, Iw, mass, sign):
+    """u[b] += sign · (p / m, I⁻¹ (r × p + Λ)) for the joint impulse change dq[j] = (p, Λ) acting on body b
+    with lever r (sign +1 on the joint's inner body k, −1 on its outer body l; Iw[j] that body's world
+    inverse inertia)."""
+    t0 = r[1] * dq[j, 2] - r[2] * dq[j, 1] + dq[j, 3]
+    t1 = r[2] * dq[j, 0] - r[0] * dq[j, 2] + dq[j, 4]
+    t2 = r[0] * dq[j, 1] - r[1] * dq[j, 0] + dq[j, 5]
+    im = sign / mass[b]
+    for z in range(3):
+        u[b, z] += dq[j, z] * im
+        u[b, 3 + z] += sign * (Iw[j, z, 0] * t0 + Iw[j, z, 1] * t1 + Iw[j, z, 2] * t2)
 
 
 @njit(cache=True, inline="always")
