@@ -54,8 +54,9 @@ def run(mode, args):
     w, c = time.perf_counter(), time.process_time()
     res = run_drape(sc, record_every=every)
     w, c = time.perf_counter() - w, time.process_time() - c
-    vol = np.array([bounding_box(p)[1] for p in res.polylines])
-    ext = np.array([bounding_box(p)[0] for p in res.polylines])
+    boxes = [bounding_box(p) for p in res.polylines]
+    ext = np.array([b[0] for b in boxes])
+    vol = np.array([b[1] for b in boxes])
     print(f"[{mode}] {sc.model.n_fibres} x {sc.model.n_segments // sc.model.n_fibres}, {sc.n_steps} steps: "
           f"{w:.1f} s wall, {c:.1f} s CPU, load {os.getloadavg()[0]:.2f}")
     for t, v, e in zip(res.times[::max(1, len(vol) // 15)], vol[::max(1, len(vol) // 15)],

@@ -287,10 +287,11 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         else:
             fld, mesh = _terrain_field()
             # iso-level offset (§8.6.5) = the bound of the trilinear interpolation error, (3/8) Δs² κ_max
-            obstacles = [Obstacle(fld, level=terrain_level(fld.spacing), name="terrain")]
+            level = terrain_level(fld.spacing)
+            obstacles = [Obstacle(fld, level=level, name="terrain")]
             desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = 0, onto a bumpy terrain (cosine "
-                    f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field 2 mm of the smooth surface, iso-level offset "
-                    f"{terrain_level(2e-3) * 1e6:.0f} µm); friction {friction_mode}")
+                    f"bumps 2.5 cm, period 12 cm, top at y = −7.5 cm, grid distance field {fld.spacing * 1e3:g} mm of the "
+                    f"smooth surface, iso-level offset {level * 1e6:.0f} µm); friction {friction_mode}")
         dur = 0.7 if duration is None else duration
     elif name == "plane":
         F, n = n_fibres or 250, segments or 100

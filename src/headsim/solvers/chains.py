@@ -676,7 +676,7 @@ class ChainSolver:
         self._mu = options.friction.generators()
         self._warm = None  # (sorted keys, λ, friction) of the last step's contact solution (warm start)
         self._impulses = None
-        self._row_counts = (0, 0)
+        self._promoted = 0  # candidate rows the last coupled solve added
         self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
 
     @staticmethod
@@ -787,7 +787,7 @@ class ChainSolver:
                 n, la, lb = np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
                 gap, tight = np.empty(P), np.empty(P, np.bool_)
                 coupled = o.contact_coupling == "coupled"
-                uu = np.ascontiguousarray(u_minus) if u_minus is not None else np.zeros((0, 6))
+                uu = uu_all if uu_all is not None else np.zeros((0, 6))
                 k = KP.fibre_pair_rows(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(params, np.float64),
                                        np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r,
                                        np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin),
@@ -982,13 +982,13 @@ class ChainSolver:
             chain_start[1:] = jk[1:] != jl[:-1]
             chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
             kern = KC.project_coupled_parallel if model.n_segments >= o.parallel_threshold else KC.project_coupled
-            sw, self._residual, promoted = kern(*geo, np.ascontiguousarray(tg), u, self._writable(model.mass), R_mid, self._writable(model.inertia), mc, ms,
+            sw, _, promoted = kern(*geo, np.ascontiguousarray(tg), u, self._writable(model.mass), R_mid, self._writable(model.inertia), mc, ms,
                       float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p, fr_p,
                       jk, jl, jrk, jrl, jt, jc, jw0, chain_off, n_rows)
             lam[:] = 0.0
             lam[pr] = lam_p
             sweeps_box[0] = max(sweeps_box[0], int(sw))
-            self._row_counts = (n_rows, int(promoted))
+            self._promoted = int(promoted)
             fr = np.zeros((len(lam), 2))
             fr[pr] = fr_p
             self._impulses = (lam.copy(), fr)
@@ -1071,21 +1071,19 @@ class ChainSolver:
                 lam = np.zeros(len(rows.body))
             if it == 0:
                 gaps = rows.gap.copy()
+                x_mid0, w_mid0 = x_mid.copy(), w_mid.copy()
+                warm = self._warm_start_impulses(rows) if o.warm_start else None
+                if warm is not None:  # a contact that carried an impulse last step is a row from the start
+                    rows.tight |= warm[0] > 0
             else:  # contact points move with the bodies: first-order gap change of the new mid state
                 dq = np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_mid - w_mid0)], axis=1)
                 gaps = np.empty(len(rows.body))
                 KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
                 gaps += rows.gap
-            if it == 0:
-                x_mid0, w_mid0 = x_mid.copy(), w_mid.copy()
-            if it == 0:
-                warm = self._warm_start_impulses(rows) if o.warm_start else None
-                if warm is not None:  # a contact that carried an impulse last step is a row from the start
-                    rows.tight |= warm[0] > 0
             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                    sweeps_box, x_mid, warm)
             vel_impulses = self._impulses
-            promoted += self._row_counts[1]
+            promoted += self._promoted
             u_pos = u_vel
             last = it + 1 == o.harmonisation_iterations
             if last and o.penetration_recovery > 0 and (gaps < 0).any():
@@ -1093,7 +1091,7 @@ class ChainSolver:
                 # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
                 u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
                                        R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm)
-                promoted += self._row_counts[1]
+                promoted += self._promoted
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
@@ -1134,7 +1132,7 @@ class ChainSolver:
         st.contacts = int(active.sum())
         if o.contact_coupling == "coupled" and len(lam):
             st.candidate_rows = int((rows.primary & ~rows.tight).sum())
-            st.contact_rows = int((rows.primary & rows.tight).sum()) + self._row_counts[1]
+            st.contact_rows = int((rows.primary & rows.tight).sum()) + self._promoted
             st.promoted_rows = promoted
         st.obstacle_contacts = int((active & rows.obstacle).sum())
         st.fibre_contacts = st.contacts - st.obstacle_contacts

@@ -309,17 +309,11 @@ def _rate_map(r, sign, C):
 
 
 @njit(cache=True, inline="always")
-def _rate_times_mobility(s, r, sign, R, mass, inertia, out):
-    """out (6, 6) ← C(r, sign) W_s (rate map times the body's mobility diag(E/m, I_w⁻¹))."""
-    C = np.empty((6, 6))
+def _rate_times_mobility(s, r, sign, R, mass, inertia, out, C, Iwi):
+    """out (6, 6) ← C(r, sign) W_s (rate map times the body's mobility diag(E/m, I_w⁻¹)); C (6, 6) and
+    Iwi (3, 3) are work arrays."""
     _rate_map(r, sign, C)
-    Iwi = np.empty((3, 3))
-    for a in range(3):
-        for b in range(3):
-            t = 0.0
-            for c in range(3):
-                t += R[s, a, c] * R[s, b, c] / inertia[s, c]
-            Iwi[a, b] = t
+    _inv_inertia_into(R[s], inertia[s], Iwi)
     im = 1.0 / mass[s]
     for a in range(6):
         for c in range(3):
@@ -385,6 +379,8 @@ def _fibre_jacobian(s0, n, j0, R, mass, inertia, half, dt, K, damping, Dg, Lo, U
     CWk = np.empty((6, 6))
     B = np.empty((6, 6))
     T = np.empty((6, 6))
+    C = np.empty((6, 6))
+    Iwi = np.empty((3, 3))
     rv = np.empty(3)
     for jj in range(nj):
         for a in range(6):
@@ -398,14 +394,14 @@ def _fibre_jacobian(s0, n, j0, R, mass, inertia, half, dt, K, damping, Dg, Lo, U
         # bodies of joint jj: l = b (always), k = b - 1 (if b > 0)
         for c in range(3):
             rv[c] = -half[s] * R[s, c, 2]
-        _rate_times_mobility(s, rv, -1.0, R, mass, inertia, CWl)
+        _rate_times_mobility(s, rv, -1.0, R, mass, inertia, CWl, C, Iwi)
         _wrench_map(rv, -1.0, B)
         _mm6_add(CWl, B, Dg[jj], 1.0)
         if b > 0:
             sk = s - 1
             for c in range(3):
                 rv[c] = half[sk] * R[sk, c, 2]
-            _rate_times_mobility(sk, rv, 1.0, R, mass, inertia, CWk)
+            _rate_times_mobility(sk, rv, 1.0, R, mass, inertia, CWk, C, Iwi)
             _wrench_map(rv, 1.0, B)
             _mm6_add(CWk, B, Dg[jj], 1.0)
             if jj > 0:  # joint jj-1 acts on body k as its "l"

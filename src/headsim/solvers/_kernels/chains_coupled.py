@@ -313,7 +313,6 @@ def _project_coupled_impl(body, partner, normal, lever, partner_lever, target, u
         if lam[c] == 0.0:
             fr[c, 0] = 0.0
             fr[c, 1] = 0.0
-        if lam[c] == 0.0:
             continue
         a = body[c]
         b = partner[c]
