@@ -108,7 +108,13 @@ class TetMesh:
         return faces[counts[inverse.ravel()] == 1]
 
     def with_vertices(self, vertices: np.ndarray) -> "TetMesh":
-        return replace(self, vertices=vertices)
+        """The same tets at new vertex positions; the topology-only caches (edges, boundary
+        triangles) carry over, the position-dependent ones are recomputed."""
+        out = replace(self, vertices=vertices)
+        for name in ("edges", "boundary_triangles"):
+            if name in self.__dict__:
+                out.__dict__[name] = self.__dict__[name]
+        return out
 
     def __repr__(self) -> str:
         return f"TetMesh({self.name!r}, {self.n_vertices} vertices, {self.n_tets} tets)"

@@ -678,10 +678,9 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
     changes = outer = 0
     while True:
         outer += 1
-        inner = newton
-        if not finishing:
-            g_start = float(np.max(np.abs(gradient(z)[free]), initial=0.0))
-            inner = replace(newton, force_tolerance=max(tol or 0.0, options.inexact_updates * g_start))
+        # between contact updates: converged at inexact_updates x the solve's starting |g| (or the tolerance)
+        inner = newton if finishing else replace(
+            newton, relative_tolerance=max(newton.relative_tolerance, options.inexact_updates))
         res = minimize_newton(energy, gradient, hessian, z, free, inner, near_null=near_null,
                               what="quasi-static contact solve", amg_cache=amg_cache)
         z = res.z
