@@ -116,4 +116,4 @@ def contact_consistency(problem, result) -> ContactConsistency:
         n_phantom=int(phantom.sum()), phantom_force=float(contact_force[phantom].sum()),
         max_phantom_gap=float(dist[phantom].max(initial=0.0)),
         n_cushion_in_skin=int(in_skin.sum()), max_cushion_in_skin_depth=float(cdepth.max(initial=0.0)),
-        skin_edge=float(p.skin_edge), max_excess_depth=float(max(excess.max(initial=0.0), 0.0)))
+        skin_edge=float(p.skin_edge), max_excess_depth=float(excess.max(initial=0.0)))

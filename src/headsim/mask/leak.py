@@ -74,7 +74,7 @@ leak_threshold_lpm``, ``--leak-threshold``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -162,7 +162,6 @@ class LeakEstimate:
     skin_roughness: float
     gap_cap: float
     seconds: float = 0.0
-    notes: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {

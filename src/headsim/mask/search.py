@@ -298,15 +298,14 @@ def _leak_bracket(solve, fits: dict, options: SearchOptions, budget_left):
         return None, forces[-1], "not-acceptable"
     if not ok[-1]:
         # acceptable somewhere but not at the largest force solved: the leak is not monotone here
-        first = forces[ok.index(True)]
-        return first, max([f for f in forces if f < first], default=None), "non-monotone"
+        i = ok.index(True)
+        return forces[i], forces[i - 1] if i else None, "non-monotone"
     # the smallest force from which every solved force is acceptable
     k = len(ok) - 1
     while k > 0 and ok[k - 1]:
         k -= 1
     hi = forces[k]
-    below = [f for f in fits if f < hi]
-    lo = max(below) if below else None
+    lo = forces[k - 1] if k else None
     if lo is None:
         lo, hi, stop = _halve_down(solve, accept, hi, options, budget_left)
         if lo is None:
