@@ -106,6 +106,16 @@ def test_seals_at_the_minimum(monkeypatch):
     assert res.status == "seals-at-minimum" and res.seal_force == 1.0 and res.lower_bound is None
 
 
+def test_seals_at_the_minimum_when_that_fit_spends_the_last_solve(monkeypatch):
+    """start 4 N, minimum 1 N, 3 solves allowed: 4, 2 and 1 N all seal; the answer is still "seals at
+    the minimum", not an unqualified seal force."""
+    calls = []
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(0.0, calls))
+    res = least_seal_force(None, SearchOptions(start=4.0, minimum=1.0, max_solves=3))
+    assert [f for f, _ in calls] == [4.0, 2.0, 1.0]
+    assert res.status == "seals-at-minimum" and res.seal_force == 1.0 and res.lower_bound is None
+
+
 def test_failed_solve_while_bracketing_retries_below(monkeypatch):
     """The model fails above 30 N, the seal is at 24 N: bracketing 10 -> 20 -> 40 (fails) must look
     between 20 and 40 and find the seal, not stop at the failure."""

@@ -256,9 +256,11 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
 def _halve_down(solve, accept, hi: float, options: SearchOptions, budget_left):
     """From an accepted force ``hi``, halve (down to ``minimum``) until a force is rejected:
     (rejected force or None, smallest accepted force, None or "at-minimum" | "max-solves" | "solve-failed")."""
-    while budget_left():
-        if hi <= options.minimum:
+    while True:
+        if hi <= options.minimum:  # checked before the budget: an accepted fit at the minimum says so
             return None, hi, "at-minimum"
+        if not budget_left():
+            return None, hi, "max-solves"
         f = max(hi / 2.0, options.minimum)
         r = solve(f)
         if r is None:
@@ -266,7 +268,6 @@ def _halve_down(solve, accept, hi: float, options: SearchOptions, budget_left):
         if not accept(r):
             return f, hi, None
         hi = f
-    return None, hi, "max-solves"
 
 
 def _bisect(solve, accept, lo: float, hi: float, options: SearchOptions, budget_left):
