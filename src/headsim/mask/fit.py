@@ -340,6 +340,10 @@ SKIN_SILICONE_FRICTION = 0.5
 FRICTION_CONTACT_UPDATES = 30
 #: stick slip eps of the lagged friction, times the median skin edge length (solvers.PlaneContact)
 FRICTION_SLIP_FRACTION = 1e-2
+#: barrier activation distance dhat, m: thickness of the compliant contact layer (module doc, "Contact")
+CONTACT_LAYER = 5e-5
+#: Newton iterations of one barrier-contact solve (collision-limited steps while contacts form)
+BARRIER_MAXIT = 300
 
 
 @dataclass(frozen=True)
@@ -365,6 +369,13 @@ class FitOptions:
         "large leak" 24 L/min, :mod:`headsim.mask.leak`)
     skin_roughness : m, residual aperture of a skin contact below the therapy pressure (leak model)
     leak_gap_cap : m, largest film aperture of the leak model (where no cushion is near)
+    contact : "planes" (default) or "barrier" (IPC barrier contact on the current geometry,
+        :mod:`headsim.solvers.barrier`; consistent by construction, slower: module doc "Contact")
+        ("planes": the lagged-plane penalty, with the known defect under "Contact consistency")
+    contact_layer : m, the barrier's activation distance dhat (thickness of the compliant contact
+        layer between skin and cushion; module doc)
+    barrier_stiffness : Pa, the barrier's pressure scale kappa (None: the softer of tissue and
+        cushion moduli)
     """
 
     tissue_modulus: float = TISSUE_MODULUS
@@ -385,8 +396,20 @@ class FitOptions:
     leak_threshold_lpm: float = LARGE_LEAK_LPM
     skin_roughness: float = SKIN_ROUGHNESS
     leak_gap_cap: float = GAP_CAP
+    contact: str = "planes"
+    contact_layer: float = CONTACT_LAYER
+    barrier_stiffness: float | None = None
 
     def __post_init__(self):
+        if self.contact not in ("barrier", "planes"):
+            raise ParameterError(f"contact must be 'barrier' or 'planes', got {self.contact!r}")
+        if not (np.isfinite(self.contact_layer) and 1e-7 <= self.contact_layer <= 1e-3):
+            raise ParameterError(f"contact_layer must be 1e-7 to 1e-3 m, got {self.contact_layer}")
+        if self.barrier_stiffness is not None and not (np.isfinite(self.barrier_stiffness) and self.barrier_stiffness > 0):
+            raise ParameterError(f"barrier_stiffness must be > 0 Pa or None, got {self.barrier_stiffness}")
+        if self.contact == "barrier" and self.friction > 0:
+            raise ParameterError("friction is implemented for contact='planes' only (the barrier contact is "
+                                 "frictionless); pass contact='planes' with friction")
         if not (np.isfinite(self.friction) and 0 <= self.friction <= 3):
             raise ParameterError(f"friction coefficient must be 0-3, got {self.friction}")
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
@@ -510,9 +533,10 @@ class FitProblem:
     model : FemModel of tissue (vertices 0..n_tissue-1) + mask (n_tissue..);
     skin_vertices : (k,) int64 model ids of the skin; skin_areas : (k,) m^2;
     mask_surface : (t, 3) int64 model ids of the mask's closed boundary;
-    shell_vertices : (s,) int64 model ids; approach : (3,) unit; penalty : Pa/m;
+    shell_vertices : (s,) int64 model ids; approach : (3,) unit; penalty : Pa/m (contact "planes");
     airway : (a,) int64 face vertices inside the airway; tissue_edges : (e, 2) int64 model ids;
-    setup_seconds : time to build the problem
+    setup_seconds : time to build the problem; start_backoff : m, how far the mask starts behind its
+    axial first contact (barrier contact: the start must not cross the skin); barrier_stiffness : Pa
     """
 
     face: SurfaceMesh
@@ -535,6 +559,8 @@ class FitProblem:
     tissue_edges: np.ndarray
     setup_seconds: float
     skin_edge: float = 3e-3
+    start_backoff: float = 0.0
+    barrier_stiffness: float = 0.0
 
     @property
     def n_vertices(self) -> int:
@@ -549,7 +575,12 @@ class FitProblem:
             "tissue_modulus_kpa": self.options.tissue_modulus / 1e3, "tissue_poisson": self.options.tissue_poisson,
             "cushion_modulus_kpa": self.mask.material.youngs_modulus / 1e3,
             "cushion_poisson": self.mask.material.poisson_ratio, "cushion_material_source": self.mask.material.source,
-            "penalty_pa_per_m": self.penalty, "approach_axis": self.approach.tolist(),
+            "contact_model": self.options.contact,
+            **({"penalty_pa_per_m": self.penalty} if self.options.contact == "planes" else
+               {"contact_layer_um": self.options.contact_layer * 1e6,
+                "barrier_stiffness_kpa": self.barrier_stiffness / 1e3,
+                "start_backoff_mm": self.start_backoff * 1e3}),
+            "approach_axis": self.approach.tolist(),
             "placement_standoff_mm": self.options.standoff * 1e3,
             "skin_cushion_friction": self.options.friction,
         }
@@ -688,6 +719,14 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
     nt = tissue.n_vertices
     mt = placed.tetmesh
     verts = np.vstack([tissue.vertices, mt.vertices])
+    backoff = 0.0
+    if options.contact == "barrier":
+        backoff = barrier_start_offset(verts, np.vstack([layer.skin_triangles, mt.boundary_triangles + nt]), nt,
+                                       approach, options.contact_layer)
+        if backoff > 0:
+            placed = placed.transformed(np.eye(3), -backoff * approach)
+            mt = placed.tetmesh
+            verts = np.vstack([tissue.vertices, mt.vertices])
     tets = np.vstack([tissue.tets, mt.tets + nt])
     tet_region = np.concatenate([np.full(tissue.n_tets, REGION_TISSUE, np.int32),
                                  np.where(mt.tet_region == REGION_SHELL, REGION_SHELL, REGION_CUSHION).astype(np.int32)])
@@ -723,7 +762,31 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
         n_tissue=nt, tissue_triangles=skin_tri, model=model, skin_vertices=skin, skin_areas=areas,
         mask_surface=mt.boundary_triangles + nt, mask_contact=placed.contact_triangles + nt, shell_vertices=placed.shell_vertices + nt, approach=approach,
         penalty=penalty, airway=airway, tissue_edges=tissue.edges, setup_seconds=time.perf_counter() - t0,
-        skin_edge=h)
+        skin_edge=h, start_backoff=backoff,
+        barrier_stiffness=options.barrier_stiffness if options.barrier_stiffness is not None else e_soft)
+
+
+def barrier_start_offset(vertices: np.ndarray, triangles: np.ndarray, n_tissue: int, approach: np.ndarray,
+                         dhat: float) -> float:
+    """How far (m) to move the mask (vertices ``n_tissue``.. of ``vertices``) back along ``approach``
+    so that skin and cushion neither cross nor lie closer than dhat / 2: the barrier contact's start
+    must be admissible (:mod:`headsim.solvers.barrier`). The axial first contact of the placement can
+    still cross the skin off the axis (steep skin beside the nose)."""
+    from headsim.solvers.barrier import BarrierContact
+
+    probe = BarrierContact(vertices, triangles, dhat, 1.0)
+    shift = 0.0
+    for _ in range(60):
+        x = vertices.copy()
+        x[n_tissue:] -= shift * approach
+        if probe.intersecting(x):
+            shift = 2.0 * shift if shift > 0 else dhat
+            continue
+        d = probe.minimum_distance(x)
+        if d >= 0.5 * dhat:
+            return shift
+        shift += 0.5 * dhat - d + 1e-3 * dhat
+    raise ParameterError("cannot find a start where the mask does not cross the face (60 back-off steps)")
 
 
 class AxialContact:
@@ -860,13 +923,19 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     p = problem
     e_shell = max(p.mask.material.youngs_modulus, p.options.tissue_modulus)
     k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
+    attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, shell_modes(p, rest_shell))
+    if p.options.contact == "barrier":
+        from headsim.solvers.barrier import BarrierContact
+
+        contact = BarrierContact(p.model.rest_positions, np.vstack([p.tissue_triangles, p.mask_surface]),
+                                 p.options.contact_layer, p.barrier_stiffness)
+        return contact, attach
     mu = float(p.options.friction)
     contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty, friction=mu,
                            friction_slip=FRICTION_SLIP_FRACTION * p.skin_edge if mu > 0 else None)
     contact.axis_of_approach = p.approach
     contact._tree = None
     contact.tolerance = tolerance
-    attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, shell_modes(p, rest_shell))
     return contact, attach
 
 
@@ -879,12 +948,13 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float):
     # per-dof residual tolerance: the imbalance of the whole mask is at most (its dofs) x this
     from headsim.solvers.newton import NewtonOptions
 
+    barrier = p.options.contact == "barrier"
     opts = QuasiStaticOptions(newton=NewtonOptions(relative_tolerance=1e-10, try_exact_hessian=EXACT,
-                                                   max_iterations=MAXIT),
+                                                   max_iterations=BARRIER_MAXIT if barrier else MAXIT),
                               max_contact_updates=max(p.options.max_contact_updates,
                                                       FRICTION_CONTACT_UPDATES if p.options.friction > 0 else 0),
                               force_tolerance=FORCE_TOL * force_scale,
-                              inexact_updates=INEXACT_UPDATES if p.options.friction == 0 else None)
+                              inexact_updates=INEXACT_UPDATES if p.options.friction == 0 and not barrier else None)
     res = solve_quasi_static(p.model, [contact, attach], drivers, initial_positions=x0, initial_drivers=u0,
                              options=opts)
     return res, contact
@@ -911,6 +981,15 @@ def fit_mask(face_or_problem: SurfaceMesh | FitProblem, mask: MaskModel | None =
     return problem_fit(problem, force, warm_start=warm_start)
 
 
+def _crosses(problem: FitProblem, positions: np.ndarray) -> bool:
+    """True when skin and mask surfaces cross at ``positions`` (an inadmissible barrier start)."""
+    from headsim.solvers.barrier import BarrierContact
+
+    probe = BarrierContact(problem.model.rest_positions, np.vstack([problem.tissue_triangles, problem.mask_surface]),
+                           problem.options.contact_layer, 1.0)
+    return probe.intersecting(positions)
+
+
 def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | None = None) -> FitResult:
     """One force-controlled equilibrium on a prepared problem (see :func:`fit_mask`)."""
     from headsim.solvers.contact import RigidDriver
@@ -931,6 +1010,9 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
     res = contact = None
     errors = []
     for x0, u0 in attempts:
+        if x0 is not None and p.options.contact == "barrier" and _crosses(p, x0):
+            errors.append("warm start discarded: skin and cushion cross there")
+            continue
         try:
             res, contact = _solve(p, drivers, x0, u0, force)
         except (ConvergenceError, DivergenceError) as e:

@@ -647,12 +647,21 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
         h = sp.block_diag([model.hessian(x, project=project), sp.csr_matrix((r, r))], format="csr") if r else \
             model.hessian(x, project=project)
         for c in contacts:
-            h = h + c.hessian(x, u)
+            # terms with an indefinite exact Hessian (barrier contact) take the projection flag
+            h = h + (c.hessian(x, u, project=project) if getattr(c, "projects_hessian", False) else c.hessian(x, u))
         return h
 
     def near_null(z):
         modes = rigid_body_modes(z[:3 * n].reshape(n, 3))
         return np.vstack([modes, np.zeros((r, 6))])
+
+    limited = [c for c in contacts if hasattr(c, "step_fraction")]
+
+    def step_limit(z, dz):
+        # barrier contacts (headsim.solvers.barrier) admit only collision-free steps
+        x, u = split(z)
+        x1, u1 = split(z + dz)
+        return min([1.0] + [c.step_fraction(x, u, x1, u1) for c in limited])
 
     scale = max([abs(f) for f in forces_u] + [float(np.max(np.abs(model.external_force))) if n else 0.0] + [0.0])
     tol = options.force_tolerance if options.force_tolerance is not None else 1e-6 * scale if scale > 0 else None
@@ -682,7 +691,8 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
         inner = newton if finishing else replace(
             newton, relative_tolerance=max(newton.relative_tolerance, options.inexact_updates))
         res = minimize_newton(energy, gradient, hessian, z, free, inner, near_null=near_null,
-                              what="quasi-static contact solve", amg_cache=amg_cache)
+                              what="quasi-static contact solve", amg_cache=amg_cache,
+                              step_limit=step_limit if limited else None)
         z = res.z
         total_it += res.iterations
         for k, v in res.timings.items():

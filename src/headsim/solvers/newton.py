@@ -369,6 +369,7 @@ def minimize_newton(
     near_null: Callable[[np.ndarray], np.ndarray] | None = None,
     what: str = "Newton solve",
     amg_cache: dict | None = None,
+    step_limit: Callable[[np.ndarray, np.ndarray], float] | None = None,
 ) -> NewtonResult:
     """Minimise ``energy`` over the entries of ``z`` where ``free`` is True.
 
@@ -376,11 +377,14 @@ def minimize_newton(
     then backtracks); gradient(z) -> (N,); hessian(z, project=True) -> (N, N) sparse, PSD when projected. Raises ConvergenceError
     when the gradient does not fall below the tolerance within ``options.max_iterations``.
     ``amg_cache``: a dict kept by the caller to reuse the AMG hierarchy across solves (e.g. the
-    outer contact loop). The result carries CPU seconds per phase (``timings``).
+    outer contact loop). ``step_limit(z, dz)`` -> largest admissible fraction of the step ``dz`` (in
+    (0, 1]; e.g. the collision-free step of a barrier contact's continuous collision detection, Li et
+    al. 2020 sec. 4.3): the line search starts there. The result carries CPU seconds per phase
+    (``timings``).
     """
     with blas_threads(options.blas_threads):
         return _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, what,
-                                {} if amg_cache is None else amg_cache)
+                                {} if amg_cache is None else amg_cache, step_limit)
 
 
 def _forcing_term(options: NewtonOptions, g2: float, g2_prev: float | None, eta_prev: float | None,
@@ -399,7 +403,8 @@ def _forcing_term(options: NewtonOptions, g2: float, g2_prev: float | None, eta_
     return float(min(max(eta, 1e-12), options.cg_rtol))
 
 
-def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, what, amg_cache) -> NewtonResult:
+def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, what, amg_cache,
+                     step_limit=None) -> NewtonResult:
     timer = _PhaseTimer()
     z = np.array(z0, dtype=np.float64)
     free = np.asarray(free, dtype=bool)
@@ -472,6 +477,13 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
             big = float(np.max(np.abs(dz))) if len(dz) else 0.0
             if big > options.max_step:
                 step = options.max_step / big
+        if step_limit is not None:
+            with timer("step_limit"):
+                full = np.zeros_like(z)
+                full[idx] = step * dz
+                step *= float(step_limit(z, full))
+            if step <= 0.0:
+                raise ConvergenceError(f"{what}: no admissible step at iteration {it} (|g| = {gnorm:.3g} N)")
         gt = None
         with timer("line_search"):
             for trial in range(options.max_line_search):
