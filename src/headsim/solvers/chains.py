@@ -678,6 +678,7 @@ class ChainSolver:
         self._impulses = None
         self._promoted = 0  # candidate rows the last coupled solve added
         self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
+        self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up) of this harmonisation pass
 
     @staticmethod
     def _writable(a):
@@ -715,7 +716,7 @@ class ChainSolver:
         band plus :data:`CLOSING_MARGIN_FACTOR` × their relative normal closing speed × Δt are rows from the
         start (``tight``); the others are candidates that the coupled solve turns into rows as soon as its
         current velocities would close their gap within the step (see
-        :func:`headsim.solvers._kernels.chains_coupled._project_coupled_impl`): a pair whose partner is
+        :func:`headsim.solvers._kernels.chains_coupled._coupled_iterate_impl`): a pair whose partner is
         stopped during the solve (a falling strand whose bottom lands) gets its row then, so the margin
         from the absolute speeds still bounds which pairs can collide, while only the pairs that do take
         part in the iteration."""
@@ -955,9 +956,11 @@ class ChainSolver:
                 np.ascontiguousarray(target), np.ascontiguousarray(C), np.ascontiguousarray(w0))
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
-                  x_mid=None, warm=None):
+                  x_mid=None, warm=None, pass_key=0):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
-        ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``."""
+        ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
+        Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
+        R_mid, u⁻) share the joint rows and the kernel set-up (:func:`~headsim.solvers._kernels.chains_coupled.coupled_setup`)."""
         o = self.options
         self._impulses = None
         if not len(bodies):
@@ -977,14 +980,23 @@ class ChainSolver:
                 lam_p, fr_p = np.zeros(len(pr)), np.zeros((len(pr), 2))
             else:
                 lam_p, fr_p = warm[0][pr], np.ascontiguousarray(warm[1][pr])
-            jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt, u_minus)
-            chain_start = np.ones(len(jk), bool)
-            chain_start[1:] = jk[1:] != jl[:-1]
-            chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
-            kern = KC.project_coupled_parallel if model.n_segments >= o.parallel_threshold else KC.project_coupled
-            sw, _, promoted = kern(*geo, np.ascontiguousarray(tg), u, self._writable(model.mass), R_mid, self._writable(model.inertia), mc, ms,
-                      float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p, fr_p,
-                      jk, jl, jrk, jrl, jt, jc, jw0, chain_off, n_rows)
+            par = model.n_segments >= o.parallel_threshold
+            ps = self._pass_setup
+            if ps is None or ps[0] is not rows or ps[1] != pass_key:  # once per harmonisation pass
+                jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt, u_minus)
+                chain_start = np.ones(len(jk), bool)
+                chain_start[1:] = jk[1:] != jl[:-1]
+                chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
+                joints = (jk, jl, jrk, jrl, jt, jc, jw0, chain_off)
+                mass, inertia = self._writable(model.mass), self._writable(model.inertia)
+                setup = (KC.coupled_setup_parallel if par else KC.coupled_setup)(
+                    *geo, mass, R_mid, inertia, jk, jl, jrk, jrl, jc, chain_off, n_rows)
+                ps = self._pass_setup = (rows, pass_key, joints, mass, inertia, setup)
+            _, _, joints, mass, inertia, setup = ps
+            kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
+            sw, _, promoted = kern(*setup, *geo, np.ascontiguousarray(tg), u, mass, R_mid, inertia, mc, ms,
+                                   float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p, fr_p,
+                                   *joints, n_rows)
             lam[:] = 0.0
             lam[pr] = lam_p
             sweeps_box[0] = max(sweeps_box[0], int(sw))
@@ -1081,7 +1093,7 @@ class ChainSolver:
                 KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
                 gaps += rows.gap
             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
-                                   sweeps_box, x_mid, warm)
+                                   sweeps_box, x_mid, warm, pass_key=it)
             vel_impulses = self._impulses
             promoted += self._promoted
             u_pos = u_vel
@@ -1090,7 +1102,7 @@ class ChainSolver:
                 # split impulse: the penetration push-out moves the positions but is not kept as velocity
                 # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
                 u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
-                                       R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm)
+                                       R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm, pass_key=it)
                 promoted += self._promoted
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
@@ -1098,6 +1110,7 @@ class ChainSolver:
                 dc = u_vel - np.concatenate([vJ + dt * g, w_mid], axis=1)
                 dx_extra = 0.5 * dt * dc[:, :3]
                 dth_extra = 0.5 * dt * dc[:, 3:]
+        self._pass_setup = None  # the kernel set-up is per pass (hundreds of MB on the reference scene)
         sweeps_max = sweeps_box[0]
         if o.warm_start and vel_impulses is not None:
             pr = np.nonzero(vel_impulses[0] > 0)[0]
