@@ -756,6 +756,15 @@ class ChainSolver:
                     mid = self._obstacle_interior(ob, model, x, d3, margin, dt, oi)
                     if mid is not None:
                         parts.append(mid)
+        if u_minus is not None:  # persistence filter of the obstacle rows (the fibre rows' is in the kernel)
+            for i, p in enumerate(parts):
+                if p.obstacle.all() and len(p.body):
+                    vn = np.empty(len(p.body))
+                    KP.row_normal_velocity(p.body, p.partner, p.normal, p.lever, p.partner_lever, uu_all, vn)
+                    keep = vn <= smooth
+                    if not keep.all():
+                        parts[i] = _Rows(*[getattr(p, k)[keep] for k in _Rows.__dataclass_fields__])
+        fields = _Rows.__dataclass_fields__
         if o.fibre_contacts and model.n_segments > 1:
             from headsim.collide import FibreBVH, FibreSet
             from headsim.collide.fibre_bvh import PackedFibreBVH
@@ -784,10 +793,15 @@ class ChainSolver:
                 pairs, params = pairs[keep], params[keep]
             if len(pairs):
                 P = len(pairs)
-                a, b = np.empty(P, np.int64), np.empty(P, np.int64)
-                n, la, lb = np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
-                gap, tight = np.empty(P), np.empty(P, np.bool_)
                 coupled = o.contact_coupling == "coupled"
+                # coupled mode: the fibre rows are written behind the obstacle rows into the arrays of the whole
+                # row set (one copy less of ≈ 2 M rows on the reference scene than a concatenation, 0.3–0.4 s)
+                n0 = sum(len(p.body) for p in parts) if coupled else 0
+                full = _Rows(np.empty(n0 + P, np.int64), np.empty(n0 + P, np.int64), np.empty((n0 + P, 3)),
+                             np.empty((n0 + P, 3)), np.empty((n0 + P, 3)), np.empty(n0 + P), np.zeros(n0 + P, bool),
+                             np.ones(n0 + P, bool), np.empty(n0 + P, np.int64), np.empty(n0 + P, np.bool_))
+                a, b, n, la, lb, gap, tight = (full.body[n0:], full.partner[n0:], full.normal[n0:], full.lever[n0:],
+                                               full.partner_lever[n0:], full.gap[n0:], full.tight[n0:])
                 uu = uu_all if uu_all is not None else np.zeros((0, 6))
                 k = KP.fibre_pair_rows(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(params, np.float64),
                                        np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r,
@@ -798,18 +812,17 @@ class ChainSolver:
                 z = np.zeros(k, bool)
                 S = model.n_segments
                 if coupled:  # one row per pair (the coupled solve applies equal and opposite impulses)
-                    parts.append(_Rows(a, b, n, la, lb, gap, z, ~z, a * S + b, tight))
+                    np.multiply(a, S, out=full.key[n0:n0 + k])
+                    full.key[n0:n0 + k] += b
+                    i0 = 0
+                    for p in parts:  # the obstacle rows first, as in the concatenation of the parts
+                        for f in fields:
+                            getattr(full, f)[i0:i0 + len(p.body)] = getattr(p, f)
+                        i0 += len(p.body)
+                    return _Rows(*[getattr(full, f)[:n0 + k] for f in fields])
                 else:
                     parts.append(_Rows(a, b, n, la, lb, gap, z, ~z, a * S + b))
                     parts.append(_Rows(b, a, -n, lb, la, gap, z, z, b * S + a))
-        if u_minus is not None:  # persistence filter of the obstacle rows (the fibre rows' is in the kernel)
-            for i, p in enumerate(parts):
-                if p.obstacle.all() and len(p.body):
-                    vn = np.empty(len(p.body))
-                    KP.row_normal_velocity(p.body, p.partner, p.normal, p.lever, p.partner_lever, uu_all, vn)
-                    keep = vn <= smooth
-                    if not keep.all():
-                        parts[i] = _Rows(*[getattr(p, k)[keep] for k in _Rows.__dataclass_fields__])
         if not parts:
             z = np.zeros((0, 3))
             return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
