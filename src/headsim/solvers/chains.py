@@ -627,35 +627,9 @@ def _unique_joint_contacts(pairs: np.ndarray, params: np.ndarray, model: ChainMo
     (segments bend at the joint and the joint gap opens slightly, so the parameters are not exactly 0, 1)."""
     if not len(pairs):
         return np.zeros(0, bool)
-    S = model.n_segments
-    a, b = pairs[:, 0], pairs[:, 1]
-    key = np.minimum(a, b) * S + np.maximum(a, b)
-    order = np.argsort(key)
-    skey = key[order]
-    fib = model.segment_fibre
-    root = model.is_root
-
-    def lookup(aa, bb):
-        k = np.minimum(aa, bb) * S + np.maximum(aa, bb)
-        i = np.clip(np.searchsorted(skey, k), 0, len(skey) - 1)
-        found = skey[i] == k
-        return found, order[i]
-
-    drop = np.zeros(len(a), bool)
-    for side in (0, 1):
-        own = pairs[:, side]
-        other = pairs[:, 1 - side]
-        at_inner = (params[:, side] * 2 * model.half_length[own] <= model.radius[own]) & ~root[own]
-        cand = np.nonzero(at_inner)[0]
-        if not len(cand):
-            continue
-        prev = own[cand] - 1
-        found, idx = lookup(prev, other[cand])
-        # the copy's parameter on the previous segment must be at its outer end (same joint point)
-        prev_side = np.where(pairs[idx, 0] == prev, 0, 1)
-        at_outer = (1.0 - params[idx, prev_side]) * 2 * model.half_length[prev] <= model.radius[prev]
-        same_fibre = fib[prev] == fib[own[cand]]
-        drop[cand[found & at_outer & same_fibre]] = True
+    drop = np.empty(len(pairs), np.bool_)
+    KP.joint_duplicate_contacts(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(params, np.float64),
+                                model.half_length, model.radius, model.segment_fibre, model.is_root, drop)
     return ~drop
 
 
