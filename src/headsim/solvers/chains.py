@@ -960,13 +960,10 @@ class ChainSolver:
                                                                    rows.partner_lever))
                 self._gathered = (rows, pr, n_rows, geo)
             _, pr, n_rows, geo = self._gathered
-            gp = gaps[pr]
-            tg = np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt))
+            tg, lam_p, fr_p = np.empty(len(pr)), np.empty(len(pr)), np.empty((len(pr), 2))
+            wl, wf = (np.zeros(0), np.zeros((0, 2))) if warm is None else warm
+            KP.kernel_row_inputs(pr, gaps, float(beta), float(dt), wl, wf, tg, lam_p, fr_p)
             mc, ms = self._mu
-            if warm is None:
-                lam_p, fr_p = np.zeros(len(pr)), np.zeros((len(pr), 2))
-            else:
-                lam_p, fr_p = warm[0][pr], np.ascontiguousarray(warm[1][pr])
             par = model.n_segments >= o.parallel_threshold
             ps = self._pass_setup
             if ps is None or ps[0] is not rows or ps[1] != pass_key:  # once per harmonisation pass
@@ -981,15 +978,13 @@ class ChainSolver:
                 ps = self._pass_setup = (rows, pass_key, joints, mass, inertia, setup)
             _, _, joints, mass, inertia, setup = ps
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
-            sw, _, promoted = kern(*setup, *geo, np.ascontiguousarray(tg), u, mass, R_mid, inertia, mc, ms,
+            sw, _, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
                                    float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p, fr_p,
                                    *joints, n_rows)
-            lam[:] = 0.0
-            lam[pr] = lam_p
+            fr = np.empty((len(lam), 2))
+            KP.scatter_kernel_impulses(pr, lam_p, fr_p, lam, fr)
             sweeps_box[0] = max(sweeps_box[0], int(sw))
             self._promoted = int(promoted)
-            fr = np.zeros((len(lam), 2))
-            fr[pr] = fr_p
             self._impulses = (lam.copy(), fr)
             return u
         u = u_minus
@@ -1009,13 +1004,9 @@ class ChainSolver:
         k = rows.key
         if not len(keys) or not len(k):
             return None
-        i = np.clip(np.searchsorted(keys, k), 0, len(keys) - 1)
-        hit = keys[i] == k
-        f = WARM_START_FRACTION
-        hit &= rows.primary
-        lam = np.where(hit, f * lam0[i], 0.0)
-        fr = np.where(hit[:, None], f * fr0[i], 0.0)
-        return lam, np.ascontiguousarray(fr)
+        lam, fr = np.empty(len(k)), np.empty((len(k), 2))
+        KP.warm_start_rows(k, rows.primary, keys, lam0, np.ascontiguousarray(fr0), WARM_START_FRACTION, lam, fr)
+        return lam, fr
 
     # -- step ----------------------------------------------------------------------------------------
     def step(self, model: ChainModel, state: ChainState, dt: float, obstacles=()) -> ChainState:

@@ -172,3 +172,65 @@ def joint_duplicate_contacts(pairs, params, half_length, radius, fibre, is_root,
             ps = 0 if pairs[idx, 0] == prev else 1
             if (1.0 - params[idx, ps]) * 2 * half_length[prev] <= radius[prev]:
                 drop[i] = True
+
+
+@njit(cache=True)
+def warm_start_rows(keys, primary, warm_keys, warm_lam, warm_fr, fraction, lam, fr):
+    """Warm-start impulses per row (:meth:`headsim.solvers.chains.ChainSolver._warm_start_impulses`):
+    lam (n,) = fraction × the previous step's normal impulse (N s) of the row's contact (same key) and
+    fr (n, 2) likewise for the friction impulse, 0 for new contacts and non-primary rows. warm_keys
+    increasing."""
+    nw = warm_keys.shape[0]
+    for i in range(keys.shape[0]):
+        lam[i] = 0.0
+        fr[i, 0] = 0.0
+        fr[i, 1] = 0.0
+        if not primary[i]:
+            continue
+        k = keys[i]
+        lo, hi = 0, nw
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if warm_keys[mid] < k:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo < nw and warm_keys[lo] == k:
+            lam[i] = fraction * warm_lam[lo]
+            fr[i, 0] = fraction * warm_fr[lo, 0]
+            fr[i, 1] = fraction * warm_fr[lo, 1]
+
+
+@njit(cache=True)
+def kernel_row_inputs(order, gaps, beta, dt, warm_lam, warm_fr, target, lam, fr):
+    """Inputs of the coupled kernel in its row order ``order``: target[q] = −g/Δt for a gap g > 0 (a
+    speculative contact) and −β g/(½Δt) for a penetration (m/s), and the starting impulses lam[q], fr[q]
+    of row order[q] (warm_lam (n,) N s, warm_fr (n, 2); empty: zeros)."""
+    warm = warm_lam.shape[0] > 0
+    for q in range(order.shape[0]):
+        r = order[q]
+        g = gaps[r]
+        target[q] = -g / dt if g > 0 else -beta * g / (0.5 * dt)
+        if warm:
+            lam[q] = warm_lam[r]
+            fr[q, 0] = warm_fr[r, 0]
+            fr[q, 1] = warm_fr[r, 1]
+        else:
+            lam[q] = 0.0
+            fr[q, 0] = 0.0
+            fr[q, 1] = 0.0
+
+
+@njit(cache=True)
+def scatter_kernel_impulses(order, lam_k, fr_k, lam, fr):
+    """lam (n,), fr (n, 2) in row order: 0, then the kernel's impulses lam_k, fr_k (order) at rows order."""
+    for i in range(lam.shape[0]):
+        lam[i] = 0.0
+        fr[i, 0] = 0.0
+        fr[i, 1] = 0.0
+    for q in range(order.shape[0]):
+        r = order[q]
+        lam[r] = lam_k[q]
+        fr[r, 0] = fr_k[q, 0]
+        fr[r, 1] = fr_k[q, 1]
+
