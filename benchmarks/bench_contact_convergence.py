@@ -45,7 +45,14 @@ residual 9.9e-3 … 7.7e-4 m/s, while the normal impulses keep growing with the 
 1.5e-7 / 2.2e-7 / 6.1e-7 N s, sum 3.3e-7 … 2.0e-6 N s; the whole strand's weight impulse per step is
 ≈ 6e-7 N s). Growing impulses point to a row set that is (nearly) infeasible together with the joint
 rows (e.g. a joint-gap target that pulls a segment into a contact); then no tolerance is ever met and
-the result is set by the sweep cap. Not investigated further (issue 10 notes).
+the result is set by the sweep cap. Check (same captured solve, 3,000 / 20,000 sweeps): with the joint
+rows' targets −d_mid/(½Δt) set to 0 the impulses stay bounded (largest 1.5e-8 / 2.5e-8 N s, sum 3.6e-7 /
+4.0e-7 N s ≈ the strand's weight impulse) and the violation falls to 3.0e-4 / 1.3e-5 m/s; without friction
+but with the targets it still grows (1.3e-7 / 3.3e-7 N s). So the joint-gap closure demanded within one
+step conflicts with the contacts once the strand rests; on the ringlet start (120 × 50, t = 5 ms) the
+targets are not the problem (zeroing them leaves the convergence as slow: 0.40 / 0.10 / 2.3e-4 off its
+own 10,000-sweep answer at 60 / 300 / 2,000 sweeps). A softer joint-gap target (a fraction of the gap per
+step, or a compliant joint row) would make the resting problem feasible; not tried here.
 """
 
 from __future__ import annotations
