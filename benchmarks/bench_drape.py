@@ -2,8 +2,8 @@
 100 segments on a sphere, Δt = 1 ms) — batched Numba kernels vs a one-fibre-at-a-time loop of the same
 algorithm in the same run. Goal ≤ 0.2 s per step on 2 cores (seed: 30–180 s per step, serial).
 
-Usage: python benchmarks/bench_drape.py [--fibres 355] [--segments 100] [--steps 60] [--loop-steps 3]
-       [--friction aniso]
+Usage: python benchmarks/bench_drape.py [--fibres 355] [--segments 100] [--settle 30] [--steps 5]
+       [--loop-steps 1] [--friction aniso] [--coupled-only]
 
 The scene is first advanced ``--settle`` steps (so the strand is in contact with itself and the
 sphere), then ``--steps`` steps are timed with the batched solver; the loop baseline (``fibre_loop=True``:
@@ -11,6 +11,25 @@ Python calls the joint kernel per fibre and the contact kernel per body) is time
 steps from the same state (same algorithm, per-body contact mode, since the coupled mode is one
 Gauss–Seidel over all contacts and has no per-fibre form). Both CPU (process_time) and wall times are
 printed, with the load average.
+
+Measured (issue 10, branch ``speed``, 2 cores shared with other jobs; before = commit e77196d, after =
+the commits up to the one that added this paragraph; same process command, alternating runs):
+
+* Reference scene, coupled only: ``--fibres 355 --segments 100 --settle 3 --steps 3 --coupled-only``
+  (ringlet start, t = 5 ms, 199 k rows + 2.1 M candidates, 6,946 active contacts; the states, energies and
+  contact counts are bitwise the same before and after): before 7.01 / 5.97 s per step wall (load 0.8 /
+  1.7), after 5.37 / 5.57 s (load 1.3 / 2.0). Phases after: contacts 3.6 s (of which the Gauss–Seidel
+  sweeps ≈ 2.4 s: 3 solves × 60 sweeps × ≈ 13 ms, of which ≈ 4 ms the chains' block-Thomas solves),
+  detection 1.4–1.5 s, joints 0.18 s. Goal 0.2 s: still ≈ 27× off.
+* Reduced: ``--fibres 120 --segments 50 --settle 5 --steps 2 --loop-steps 1`` (load 0.8–1.3): coupled
+  0.84 → 0.80 s per step (within the noise; the changes act on the ≈ 2 M pairs of the full scene),
+  per-body 6.2 / 6.5 s, one fibre at a time 9.9 / 9.5 s.
+
+What limits the speed (``bench_contact_convergence.py``): the 60 sweeps are far from converged (velocity
+correction 31 % off its converged value), so fewer sweeps would change the physics, and the shipped
+iteration needs ≈ 2,000 sweeps for 1e-5 m/s; the rest is proportional to the ≈ 3 M detected pairs that
+the absolute speed margin gives a falling strand (BVH query and sort, rows, gathers; 0–7 candidates
+become rows per solve).
 """
 
 from __future__ import annotations
@@ -49,6 +68,8 @@ def main():
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--loop-steps", type=int, default=1)
     ap.add_argument("--friction", default="aniso")
+    ap.add_argument("--coupled-only", action="store_true",
+                    help="time the coupled solver only (the per-body stages take minutes per step at full size)")
     args = ap.parse_args()
     import numba
 
@@ -57,7 +78,7 @@ def main():
 
     print(f"load average {os.getloadavg()}, numba threads {numba.get_num_threads()}")
     timed = {}
-    for coupling in ("coupled", "per-body"):
+    for coupling in ("coupled",) if args.coupled_only else ("coupled", "per-body"):
         scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
                                   contact_coupling=coupling)
         solver = ChainSolver(scene.options)

@@ -108,3 +108,129 @@ def row_normal_velocity(body, partner, normal, lever, partner_lever, u, out):
             s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1]) + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
                   + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
         out[c] = s
+
+
+@njit(cache=True)
+def _find_key(skey, k, lo, hi):
+    """Index of k in the increasing skey[lo:hi] (its first occurrence), or −1."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if skey[mid] < k:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo if lo < skey.shape[0] and skey[lo] == k else -1
+
+
+@njit(cache=True)
+def joint_duplicate_contacts(pairs, params, half_length, radius, fibre, is_root, drop):
+    """drop (P,) bool: True for the copies of a contact at a joint that
+    :func:`headsim.solvers.chains._unique_joint_contacts` removes (its docstring has the rule): a pair whose
+    closest point on one side lies within that segment's radius of its inner end (not a root) is dropped
+    when the pair (previous segment of the same fibre, same partner) exists with its closest point within
+    the radius of the previous segment's outer end. pairs (P, 2) int64 with a distinct a·S + b key per row
+    (a < b, sorted by key: then no sort is made; otherwise the keys are sorted here); params (P, 2) the
+    closest points' axis parameters in [0, 1]; lengths in m."""
+    P = pairs.shape[0]
+    S = half_length.shape[0]
+    key = np.empty(P, np.int64)
+    ordered = True
+    for i in range(P):
+        a = min(pairs[i, 0], pairs[i, 1])
+        b = max(pairs[i, 0], pairs[i, 1])
+        key[i] = a * S + b
+        if i and key[i] <= key[i - 1]:
+            ordered = False
+    if ordered:
+        order = np.arange(P)
+        skey = key
+    else:
+        order = np.argsort(key, kind="mergesort")
+        skey = key[order]
+    # CSR of the sorted keys over their first segment (the lookups search one segment's partners only)
+    start = np.zeros(S + 1, np.int64)
+    for i in range(P):
+        start[skey[i] // S + 1] += 1
+    for z in range(S):
+        start[z + 1] += start[z]
+    for i in range(P):
+        drop[i] = False
+    for side in range(2):
+        for i in range(P):
+            own = pairs[i, side]
+            other = pairs[i, 1 - side]
+            if is_root[own] or not (params[i, side] * 2 * half_length[own] <= radius[own]):
+                continue
+            prev = own - 1
+            if fibre[prev] != fibre[own]:
+                continue
+            lo = min(prev, other)
+            q = _find_key(skey, lo * S + max(prev, other), start[lo], start[lo + 1])
+            if q < 0:
+                continue
+            idx = order[q]
+            ps = 0 if pairs[idx, 0] == prev else 1
+            if (1.0 - params[idx, ps]) * 2 * half_length[prev] <= radius[prev]:
+                drop[i] = True
+
+
+@njit(cache=True)
+def warm_start_rows(keys, primary, warm_keys, warm_lam, warm_fr, fraction, lam, fr):
+    """Warm-start impulses per row (:meth:`headsim.solvers.chains.ChainSolver._warm_start_impulses`):
+    lam (n,) = fraction × the previous step's normal impulse (N s) of the row's contact (same key) and
+    fr (n, 2) likewise for the friction impulse, 0 for new contacts and non-primary rows. warm_keys
+    increasing."""
+    nw = warm_keys.shape[0]
+    for i in range(keys.shape[0]):
+        lam[i] = 0.0
+        fr[i, 0] = 0.0
+        fr[i, 1] = 0.0
+        if not primary[i]:
+            continue
+        k = keys[i]
+        lo, hi = 0, nw
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if warm_keys[mid] < k:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo < nw and warm_keys[lo] == k:
+            lam[i] = fraction * warm_lam[lo]
+            fr[i, 0] = fraction * warm_fr[lo, 0]
+            fr[i, 1] = fraction * warm_fr[lo, 1]
+
+
+@njit(cache=True)
+def kernel_row_inputs(order, gaps, beta, dt, warm_lam, warm_fr, target, lam, fr):
+    """Inputs of the coupled kernel in its row order ``order``: target[q] = −g/Δt for a gap g > 0 (a
+    speculative contact) and −β g/(½Δt) for a penetration (m/s), and the starting impulses lam[q], fr[q]
+    of row order[q] (warm_lam (n,) N s, warm_fr (n, 2); empty: zeros)."""
+    warm = warm_lam.shape[0] > 0
+    for q in range(order.shape[0]):
+        r = order[q]
+        g = gaps[r]
+        target[q] = -g / dt if g > 0 else -beta * g / (0.5 * dt)
+        if warm:
+            lam[q] = warm_lam[r]
+            fr[q, 0] = warm_fr[r, 0]
+            fr[q, 1] = warm_fr[r, 1]
+        else:
+            lam[q] = 0.0
+            fr[q, 0] = 0.0
+            fr[q, 1] = 0.0
+
+
+@njit(cache=True)
+def scatter_kernel_impulses(order, lam_k, fr_k, lam, fr):
+    """lam (n,), fr (n, 2) in row order: 0, then the kernel's impulses lam_k, fr_k (order) at rows order."""
+    for i in range(lam.shape[0]):
+        lam[i] = 0.0
+        fr[i, 0] = 0.0
+        fr[i, 1] = 0.0
+    for q in range(order.shape[0]):
+        r = order[q]
+        lam[r] = lam_k[q]
+        fr[r, 0] = fr_k[q, 0]
+        fr[r, 1] = fr_k[q, 1]
+
