@@ -156,3 +156,37 @@ def test_terrain_field_is_solid_and_within_its_interpolation_bound():
         assert (fld.normal(surf - [0.0, depth, 0.0])[:, 1] > 0).all()
     sc = build_drape_scene("terrain", n_fibres=3, segments=30)
     assert sc.obstacles[0].level == bound
+
+
+def test_sphere_helical_geometry_is_derived_from_the_seeds_table_8_1_box():
+    """§8.6.2 / Table 8.1: the seed states neither the root height nor the sphere nor the helix; the
+    default scene derives them from its isotropic box 8.69 × 14.09 × 8.35 cm and μ = 0.47
+    (:class:`HelicalSphereGeometry`). Checked: each derivation step's relation; the full-size start
+    (355 × 100, 30 cm) is a coil one short box side wide (8.69 cm, within one segment chord, 3 mm),
+    hangs from the roots (the highest nodes) clear of the sphere, and the pile's rim on the sphere
+    (half the long side from the axis) lies on the friction angle and 8.35 cm below the roots."""
+    from headsim.hair.drape import (
+        FIBRE_DIAMETER,
+        SEED_ISOTROPIC_MU,
+        SEED_TABLE_8_1,
+        HelicalSphereGeometry,
+    )
+    from headsim.solvers.chains import polylines_from_state
+
+    g = HelicalSphereGeometry.derive()
+    short, long_, height = (0.01 * v for v in SEED_TABLE_8_1["iso"])
+    a = 0.5 * long_
+    assert a / g.sphere_radius == pytest.approx(np.sin(np.arctan(SEED_ISOTROPIC_MU)), rel=1e-12)
+    rim_depth = g.sphere_radius - np.sqrt(g.sphere_radius**2 - a**2)
+    assert g.root_height + rim_depth == pytest.approx(height, rel=1e-12)
+    assert 0.04 < g.helix_radius < 0.5 * short
+    sc = build_drape_scene("sphere-helical")
+    p = polylines_from_state(sc.model, sc.state)
+    assert p.shape == (355, 101, 3)
+    ext, _ = bounding_box(p)
+    assert abs(ext[0] - short) < 3e-3 and abs(ext[2] - short) < 3e-3  # the coil's diameter
+    assert np.allclose(p[:, 0, 1], p[..., 1].max(), atol=2e-3)  # roots on top (lattice offsets ≤ 1 mm)
+    phi = sc.obstacles[0].field.distance(p.reshape(-1, 3))
+    assert phi.min() > 0.02  # hangs ≥ 2 cm above the sphere at the start
+    assert p[..., 1].max() - p[..., 1].min() < height  # the coil fits in the seed's box height
+    assert sc.model.radius[0] == pytest.approx(0.5 * FIBRE_DIAMETER)
