@@ -48,7 +48,7 @@ from headsim.solvers.chains import (
 )
 
 __all__ = ["SCENES", "FRICTION_MODES", "HelicalSphereGeometry", "SEED_TABLE_8_1", "SEED_TABLE_8_1_RATIO", "DrapeScene", "DrapeResult", "friction_law", "build_drape_scene",
-           "run_drape", "bounding_box", "write_drape"]
+           "run_drape", "bounding_box", "volume_stability", "write_drape"]
 
 SCENES = ("sphere-horizontal", "sphere-helical", "plane", "terrain", "head")
 FRICTION_MODES = ("aniso", "iso", "none")
@@ -409,6 +409,16 @@ def bounding_box(polylines: np.ndarray) -> tuple[np.ndarray, float]:
     p = np.asarray(polylines).reshape(-1, 3)
     ext = p.max(0) - p.min(0)
     return ext, float(np.prod(ext))
+
+
+def volume_stability(result: DrapeResult, window: float) -> tuple[float, float]:
+    """The seed's "stable volume" (§8.6.2) as two numbers: (max − min) / mean of the recorded frames'
+    bounding-box volumes (Table 8.1's measure) over the last ``window`` seconds, and the last step's
+    kinetic energy over its peak over the run (both dimensionless)."""
+    vol = np.array([bounding_box(p)[1] for p in result.polylines])
+    win = result.times >= result.times[-1] - window - 1e-12
+    spread = float((vol[win].max() - vol[win].min()) / vol[win].mean())
+    return spread, float(result.kinetic[-1] / max(result.kinetic.max(), 1e-300))
 
 
 def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: int | None = None,
