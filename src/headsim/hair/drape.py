@@ -99,6 +99,13 @@ class HelicalSphereGeometry:
     pitch: float
     root_height: float
     sphere_radius: float
+    sphere_offset: float = 0.0  # m, the sphere centre's x offset from the helix axis
+
+    @classmethod
+    def former(cls) -> "HelicalSphereGeometry":
+        """The geometry before the derivation (12 mm helix, pitch 8 mm, roots 12 cm above a 5 cm sphere
+        offset 1.5 cm): for comparing with benchmarks measured on it (e.g. ``bench_drape.py`` timings)."""
+        return cls(0.012, 0.008, 0.12, 0.05, 0.015)
 
     @classmethod
     def derive(cls, n_fibres: int = 355, spacing: float = RINGLET_SPACING, mu: float = SEED_ISOTROPIC_MU,
@@ -345,11 +352,11 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
                   f"fibres on a {spacing * 1e6:.0f} µm hexagonal lattice across it; rest shape {rest_shape})")
         if name == "sphere-helical":
             R = g.sphere_radius
-            # centred under the helix axis (x = z = 0), its top at y = 0
-            obstacles = [Obstacle(SphereField((0.0, -R, 0.0), R), name="sphere")]
+            # centred under the helix axis (x = z = 0) unless offset, its top at y = 0
+            obstacles = [Obstacle(SphereField((g.sphere_offset, -R, 0.0), R), name="sphere")]
             desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = {top * 100:.3g} cm, "
-                    f"sphere R = {R * 100:.3g} cm with its top at y = 0, centred under the helix axis; "
-                    f"friction {friction_mode}")
+                    f"sphere R = {R * 100:.3g} cm with its top at y = 0, centre {g.sphere_offset * 100:.3g} cm "
+                    f"from the helix axis; friction {friction_mode}")
         else:
             fld, mesh = _terrain_field()
             # iso-level offset (§8.6.5) = the bound of the trilinear interpolation error, (3/8) Δs² κ_max
