@@ -47,8 +47,9 @@ from headsim.solvers.chains import (
     polylines_from_state,
 )
 
-__all__ = ["SCENES", "FRICTION_MODES", "HelicalSphereGeometry", "SEED_TABLE_8_1", "SEED_TABLE_8_1_RATIO", "DrapeScene", "DrapeResult", "friction_law", "build_drape_scene",
-           "run_drape", "bounding_box", "volume_stability", "write_drape"]
+__all__ = ["SCENES", "FRICTION_MODES", "HelicalSphereGeometry", "SEED_TABLE_8_1", "SEED_TABLE_8_1_RATIO",
+           "DrapeScene", "DrapeResult", "friction_law", "build_drape_scene", "run_drape", "bounding_box",
+           "volume_stability", "write_drape"]
 
 SCENES = ("sphere-horizontal", "sphere-helical", "plane", "terrain", "head")
 FRICTION_MODES = ("aniso", "iso", "none")
@@ -76,10 +77,11 @@ class HelicalSphereGeometry:
     does not state the root height, the sphere radius or the helix. They are derived here (:meth:`derive`;
     Table 8.1's isotropic row and μ = 0.47, the only friction value the seed gives):
 
-    1. *Helix radius* ρ: the box's two short sides (8.69, 8.35 cm) are both ≈ one coil diameter, i.e. the
-       strand lies as loops of the coil it started as. ρ = (8.69 cm − t)/2 with t the strand thickness
-       (the hexagonal lattice of :data:`RINGLET_SPACING` holding 355 fibres is a disc of t = 2.1 mm):
-       ρ = 4.24 cm. A 30 cm fibre is then 1.1 turns.
+    1. *Helix radius* ρ: the box's short horizontal side (8.69 cm) is one coil diameter, i.e. the strand
+       lands as loops of the coil it started as and the unwinding spreads it along the other side
+       (14.09 cm). ρ = (8.69 cm − t)/2 with t the strand thickness (the hexagonal lattice of
+       :data:`RINGLET_SPACING` holding 355 fibres is a disc of t = 2.1 mm): ρ = 4.24 cm. A 30 cm fibre
+       is then 1.1 turns.
     2. *Sphere radius* R: "friction prevents further sliding" — the pile's rim, half the long side
        a = 14.09/2 = 7.05 cm from the axis, must rest where the sphere is no steeper than the friction
        angle of μ = 0.47 (25.2°): R ≥ a / sin(arctan μ) = 16.6 cm. The smallest such sphere is taken.
@@ -91,8 +93,13 @@ class HelicalSphereGeometry:
        2.8 cm above the sphere (no contact at the start; turns 3.6 cm apart, far more than t).
 
     Consequences: the strand falls 2.8 cm (lands at ≈ 0.74 m/s, ≈ 0.08 s) and has ≈ 0.6 s to settle
-    before the seed's 0.7 s box. The former geometry (12 mm helix, roots 12 cm above a 5 cm sphere)
-    could not give the seed's box: its straightened strand hangs ≈ 28 cm.
+    before the seed's 0.7 s box. The former geometry (12 mm helix, roots 12 cm above a 5 cm sphere,
+    :meth:`former`) could not give the seed's box: its straightened strand hangs ≈ 28 cm.
+
+    Outcome (``benchmarks/bench_drape_volume.py``, reduced scenes): with the default straight rest
+    shape the strand still slides over the rim and hangs down the sphere's side; the boxes at 0.7 s are
+    2–5 times the seed's; none < iso, aniso holds, iso ≈ aniso does not; the isotropic run comes to rest
+    (stable volume), the anisotropic one does not by 1.5 s.
     """
 
     helix_radius: float
