@@ -54,8 +54,9 @@ t = 0.7 s; seed: iso 8.69 × 14.09 × 8.35 = 1,022 cm³, aniso 1,032, none 935):
 Load on the shared 2-core machine 0.4–3.1 during these runs; 19 × 30 takes 17–70 s per mode, 61 × 50
 114–293 s per 0.7 s and 425 s per 1.5 s (one thread). Full size (355 × 100, aniso, load 1.0): the start
 box is 8.69 × 4.27 × 8.70 cm (the coil's diameter is the seed's short side, as derived); the first 10
-steps (free fall) take 1.4 s each (detection 0.46 s, contacts 0.75 s); 0.7 s × 3 modes plus 1.5 s of
-settling is hours on this machine and was not run.
+steps (free fall) take 1.4 s each (detection 0.46 s, contacts 0.75 s); a 120-step run (through the
+landing at ≈ 0.08 s) did not finish within 1,200 s (> 10 s per step, load 1.2–2.0). 0.7 s × 3 modes
+plus 1.5 s of settling is many hours on this machine and was not run.
 
 Usage: python benchmarks/bench_drape_volume.py [--fibres 355] [--segments 100] [--duration 0.7]
        [--settle 1.5] [--modes aniso,iso,none] [--window 0.2] [--rest-shape straight|initial]
