@@ -156,3 +156,110 @@ def test_terrain_field_is_solid_and_within_its_interpolation_bound():
         assert (fld.normal(surf - [0.0, depth, 0.0])[:, 1] > 0).all()
     sc = build_drape_scene("terrain", n_fibres=3, segments=30)
     assert sc.obstacles[0].level == bound
+
+
+def test_sphere_helical_geometry_is_derived_from_the_seeds_table_8_1_box():
+    """§8.6.2 / Table 8.1: the seed states neither the root height nor the sphere nor the helix; the
+    default scene derives them from its isotropic box 8.69 × 14.09 × 8.35 cm and μ = 0.47
+    (:class:`HelicalSphereGeometry`). Checked: each derivation step's relation; the full-size start
+    (355 × 100, 30 cm) is a coil one short box side wide (8.69 cm, within one segment chord, 3 mm),
+    hangs from the roots (the highest nodes) clear of the sphere, and the pile's rim on the sphere
+    (half the long side from the axis) lies on the friction angle and 8.35 cm below the roots."""
+    from headsim.hair.drape import (
+        FIBRE_DIAMETER,
+        SEED_ISOTROPIC_MU,
+        SEED_TABLE_8_1,
+        HelicalSphereGeometry,
+    )
+    from headsim.solvers.chains import polylines_from_state
+
+    g = HelicalSphereGeometry.derive()
+    short, long_, height = (0.01 * v for v in SEED_TABLE_8_1["iso"])
+    a = 0.5 * long_
+    assert a / g.sphere_radius == pytest.approx(np.sin(np.arctan(SEED_ISOTROPIC_MU)), rel=1e-12)
+    rim_depth = g.sphere_radius - np.sqrt(g.sphere_radius**2 - a**2)
+    assert g.root_height + rim_depth == pytest.approx(height, rel=1e-12)
+    assert 0.04 < g.helix_radius < 0.5 * short
+    sc = build_drape_scene("sphere-helical")
+    p = polylines_from_state(sc.model, sc.state)
+    assert p.shape == (355, 101, 3)
+    ext, _ = bounding_box(p)
+    assert abs(ext[0] - short) < 3e-3 and abs(ext[2] - short) < 3e-3  # the coil's diameter
+    assert np.allclose(p[:, 0, 1], p[..., 1].max(), atol=2e-3)  # roots on top (lattice offsets ≤ 1 mm)
+    phi = sc.obstacles[0].field.distance(p.reshape(-1, 3))
+    assert phi.min() > 0.02  # hangs ≥ 2 cm above the sphere at the start
+    assert p[..., 1].max() - p[..., 1].min() < height  # the coil fits in the seed's box height
+    assert sc.model.radius[0] == pytest.approx(0.5 * FIBRE_DIAMETER)
+
+
+# Table 8.1's thresholds, from the seed's own figures (volumes relative to the anisotropic run: iso 0.99,
+# aniso 1.00, none 0.906): 0.95 is half-way between its two groups, 0.05 half the gap between them.
+GROUP_THRESHOLD = 0.95
+SAME_BAND = 0.05
+# "stable volume": the volume range over the last 0.2 s below half the seed's 9 % friction / no-friction
+# difference (a change Table 8.1 could not resolve), the kinetic energy below 1/100 of its peak
+STABLE_FRACTION = 0.05
+KE_FRACTION = 1e-2
+
+
+@pytest.fixture(scope="module")
+def helical_runs():
+    """The reference scene (§8.6.2, the derived default geometry, rest shape straight) reduced to 7 fibres
+    × 30 segments (1 cm; the seed: 355 × 100), Δt = 1 ms, 30 cm fibres, recorded every 10 ms: aniso and
+    none to the seed's 0.7 s, iso to 1.5 s (for the stable volume; its 0.7 s frame for Table 8.1).
+    Returns {mode: (result, volumes (frames,) m³)}."""
+    runs = {}
+    for mode, duration in (("aniso", 0.7), ("iso", 1.5), ("none", 0.7)):
+        sc = build_drape_scene("sphere-helical", mode, n_fibres=7, segments=30, duration=duration)
+        res = run_drape(sc, record_every=10)
+        assert np.isfinite(res.polylines).all()
+        runs[mode] = (res, np.array([bounding_box(p)[1] for p in res.polylines]))
+    return runs
+
+
+def _volume_at(run, t):
+    res, vol = run
+    return vol[int(np.argmin(np.abs(res.times - t)))]
+
+
+def test_table_8_1_no_friction_gives_the_smallest_box(helical_runs):
+    """Table 8.1 (§8.6.5.2), t = 0.7 s: without friction the bounding box is the smallest — volume below
+    0.95 × the isotropic and the anisotropic ones (seed: 0.915 and 0.906).
+
+    Reduced scene (see ``helical_runs``); the ordering was checked on larger scenes once
+    (``benchmarks/bench_drape_volume.py``, derived geometry, straight rest shape): none/aniso, none/iso =
+    0.58, 0.68 at 19 × 30 and 0.53, 0.72 at 61 × 50; here 0.49, 0.56. The agreement is in the ordering
+    only, not in the mechanism or the size: our boxes are 2–5 times the seed's; the frictionless strand
+    slides over the sphere's rim and hangs down its side (box ≈ 12 × 24 × 7 cm, 24 cm tall against the
+    seed's 8.24 cm), narrower than the frictional strands spread over the cap."""
+    n, i, a = (_volume_at(helical_runs[m], 0.7) for m in ("none", "iso", "aniso"))
+    assert n / a < GROUP_THRESHOLD
+    assert n / i < GROUP_THRESHOLD
+
+
+@pytest.mark.xfail(strict=True, reason="Table 8.1's iso ≈ aniso (0.99) is not reproduced: iso/aniso = 0.88 "
+                   "here, 0.85 at 19 × 30, 0.74 at 61 × 50 (the anisotropic strand is still swinging at 0.7 s)")
+def test_table_8_1_isotropic_and_anisotropic_boxes_agree(helical_runs):
+    """Table 8.1: the isotropic (μ = 0.47) and anisotropic (wool/wool 0.13 / 0.61 / 0.21) boxes agree
+    within 5 % (seed: 0.99). Fails (strict xfail, so a change that makes it pass is noticed): at 0.7 s
+    the frictional strands have not come to rest (the anisotropic one keeps sliding and swinging on the
+    sphere with its low with-the-scales μ), and their boxes differ by 12–26 % (numbers in the reason)."""
+    i, a = (_volume_at(helical_runs[m], 0.7) for m in ("iso", "aniso"))
+    assert abs(i / a - 1) < SAME_BAND
+
+
+def test_reference_scene_settles_to_a_stable_volume_with_isotropic_friction(helical_runs):
+    """§8.6.2: the strand settles ("friction prevents further sliding") and forms a stable volume. With
+    μ = 0.47 (the reduced scene of ``helical_runs``, 1.5 s): over the last 0.2 s the bounding-box volume
+    varies by less than 5 % of its mean and the kinetic energy is below 1/100 of its peak (measured:
+    0.2 % and 3.9e-4; 19 × 30: 0.2 %, 2.8e-4; 61 × 50: 0.2 %, 3.2e-5). The strand rests partly over the
+    sphere's rim (box ≈ 13 × 16 cm wide, 20 cm tall, against the seed's 8.7 × 14.1 cm, 8.4 cm tall). Not asserted for the
+    anisotropic model, which does not settle by 1.5 s at 7 × 30 (29 %, 4e-2), 19 × 30 (16 %, 1.0e-2) or
+    61 × 50 (15 %, 1.3e-2): see ``benchmarks/bench_drape_volume.py``."""
+    from headsim.hair.drape import volume_stability
+
+    res, _ = helical_runs["iso"]
+    assert res.times[-1] == pytest.approx(1.5)
+    spread, ke = volume_stability(res, 0.2)
+    assert spread < STABLE_FRACTION
+    assert ke < KE_FRACTION

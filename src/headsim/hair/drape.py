@@ -6,7 +6,9 @@ and listed in every scene's ``description``):
 * ``sphere-horizontal`` (§8.6.1): a flat, one-side-fixed ribbon of horizontal fibres (seed: 500 × 40
   segments, 30 cm) falling onto a sphere centred under its midline.
 * ``sphere-helical`` (§8.6.2, the reference scene): a vertical, initially helical strand (seed:
-  355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below; rest shape straight by default,
+  355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below, with the root height, sphere
+  radius and helix derived from the seed's Table 8.1 box (:class:`HelicalSphereGeometry`: a 4.24 cm
+  coil hanging from roots 6.8 cm above a 16.6 cm sphere); rest shape straight by default,
   so the helix unwinds (``rest_shape="initial"``: a curl that gravity stretches). The seed's "crossing,
   where the unwinding strand rests on the settled one as a distinct bundle" makes the strand one
   bundle: a ringlet whose centreline is the helix, the fibres on a hexagonal lattice across it
@@ -45,8 +47,9 @@ from headsim.solvers.chains import (
     polylines_from_state,
 )
 
-__all__ = ["SCENES", "FRICTION_MODES", "DrapeScene", "DrapeResult", "friction_law", "build_drape_scene",
-           "run_drape", "bounding_box", "write_drape"]
+__all__ = ["SCENES", "FRICTION_MODES", "HelicalSphereGeometry", "SEED_TABLE_8_1", "SEED_TABLE_8_1_RATIO",
+           "DrapeScene", "DrapeResult", "friction_law", "build_drape_scene", "run_drape", "bounding_box",
+           "volume_stability", "write_drape"]
 
 SCENES = ("sphere-horizontal", "sphere-helical", "plane", "terrain", "head")
 FRICTION_MODES = ("aniso", "iso", "none")
@@ -54,6 +57,74 @@ FIBRE_DIAMETER = 70e-6  # m, Sobottka §8.6 ("durchgängig ein Querschnitt von 7
 # m, lattice spacing of the helical strands: 1.5 d leaves 35 µm (one radius) between neighbouring fibres,
 # 1.49 d at the chords of 3 mm segments (measured); the seed gives no packing
 RINGLET_SPACING = 1.5 * FIBRE_DIAMETER
+
+
+#: Sobottka 2008 Table 8.1 (§8.6.5.2): axis-aligned bounding box of the reference scene at t ≈ 0.7 s,
+#: (Länge, Breite, Höhe) in cm per friction model, and the volume relative to the anisotropic run (the
+#: header's "%" column is that fraction).
+SEED_TABLE_8_1 = {"iso": (8.69, 14.09, 8.35), "aniso": (8.53, 14.09, 8.59), "none": (8.12, 13.98, 8.24)}
+SEED_TABLE_8_1_RATIO = {"iso": 0.990, "aniso": 1.000, "none": 0.906}
+SEED_ISOTROPIC_MU = 0.47  # §8.6.5.2
+
+
+@dataclass(frozen=True)
+class HelicalSphereGeometry:
+    """Geometry of the ``sphere-helical`` reference scene (§8.6.2), m, derived from what the seed states.
+
+    The seed states: 355 fibres × 100 segments, 30 cm, 70 µm, Δt = 1 ms, a vertical, initially helical
+    strand falling onto "a sphere below", gravity, and (Table 8.1, isotropic μ = 0.47, t ≈ 0.7 s) an
+    axis-aligned box of 8.69 × 14.09 × 8.35 cm (Länge × Breite × Höhe; Höhe read as the vertical). It
+    does not state the root height, the sphere radius or the helix. They are derived here (:meth:`derive`;
+    Table 8.1's isotropic row and μ = 0.47, the only friction value the seed gives):
+
+    1. *Helix radius* ρ: the box's short horizontal side (8.69 cm) is one coil diameter, i.e. the strand
+       lands as loops of the coil it started as and the unwinding spreads it along the other side
+       (14.09 cm). ρ = (8.69 cm − t)/2 with t the strand thickness (the hexagonal lattice of
+       :data:`RINGLET_SPACING` holding 355 fibres is a disc of t = 2.1 mm): ρ = 4.24 cm. A 30 cm fibre
+       is then 1.1 turns.
+    2. *Sphere radius* R: "friction prevents further sliding" — the pile's rim, half the long side
+       a = 14.09/2 = 7.05 cm from the axis, must rest where the sphere is no steeper than the friction
+       angle of μ = 0.47 (25.2°): R ≥ a / sin(arctan μ) = 16.6 cm. The smallest such sphere is taken.
+    3. *Root height* h above the sphere's top: the roots are fixed and everything else falls, so the
+       roots are the top of the box and the rim of the pile resting on the sphere is its bottom:
+       h = 8.35 cm − (R − √(R² − a²)) = 8.35 − 1.57 = 6.8 cm.
+    4. The sphere is centred under the helix axis (as §8.6.1 centres its sphere under the midline).
+    5. *Pitch* (not derivable): 3.6 cm, so the 1.1-turn coil is 4.0 cm tall and its lowest point hangs
+       2.8 cm above the sphere (no contact at the start; turns 3.6 cm apart, far more than t).
+
+    Consequences: the strand falls 2.8 cm (lands at ≈ 0.74 m/s, ≈ 0.08 s) and has ≈ 0.6 s to settle
+    before the seed's 0.7 s box. The former geometry (12 mm helix, roots 12 cm above a 5 cm sphere,
+    :meth:`former`) could not give the seed's box: its straightened strand hangs ≈ 28 cm.
+
+    Outcome (``benchmarks/bench_drape_volume.py``, reduced scenes): with the default straight rest
+    shape the strand still slides over the rim and hangs down the sphere's side; the boxes at 0.7 s are
+    2–5 times the seed's; none < iso, aniso holds, iso ≈ aniso does not; the isotropic run comes to rest
+    (stable volume), the anisotropic one does not by 1.5 s.
+    """
+
+    helix_radius: float
+    pitch: float
+    root_height: float
+    sphere_radius: float
+    sphere_offset: float = 0.0  # m, the sphere centre's x offset from the helix axis
+
+    @classmethod
+    def former(cls) -> "HelicalSphereGeometry":
+        """The geometry before the derivation (12 mm helix, pitch 8 mm, roots 12 cm above a 5 cm sphere
+        offset 1.5 cm): for comparing with benchmarks measured on it (e.g. ``bench_drape.py`` timings)."""
+        return cls(0.012, 0.008, 0.12, 0.05, 0.015)
+
+    @classmethod
+    def derive(cls, n_fibres: int = 355, spacing: float = RINGLET_SPACING, mu: float = SEED_ISOTROPIC_MU,
+               box_cm=SEED_TABLE_8_1["iso"], pitch: float = 0.036) -> "HelicalSphereGeometry":
+        """Steps 1–3 of the class docstring from the seed's numbers (box in cm, results in m)."""
+        short, long_, height = (0.01 * v for v in box_cm)
+        thickness = 2.0 * np.sqrt(n_fibres * (np.sqrt(3) / 2) * spacing**2 / np.pi)
+        rho = 0.5 * (short - thickness)
+        a = 0.5 * long_
+        R = a / np.sin(np.arctan(mu))
+        h = height - (R - np.sqrt(R**2 - a**2))
+        return cls(float(rho), float(pitch), float(h), float(R))
 
 
 def friction_law(mode: str) -> FrictionLaw:
@@ -240,13 +311,16 @@ def _terrain_field(spacing=2e-3):
 def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int | None = None,
                       segments: int | None = None, length: float = 0.30, dt: float = 1e-3,
                       duration: float | None = None, seed: int = 0, fibre_spacing: float | None = None,
-                      rest_shape: str = "straight", **option_overrides) -> DrapeScene:
+                      rest_shape: str = "straight", geometry: HelicalSphereGeometry | None = None,
+                      **option_overrides) -> DrapeScene:
     """One of :data:`SCENES` at the seed's size (or ``n_fibres`` × ``segments`` when given).
 
     fibre_spacing : lattice spacing of the helical strands (sphere-helical, terrain, plane), m;
         default :data:`RINGLET_SPACING`. Must exceed the fibre diameter (no start in interpenetration).
     rest_shape : ``"straight"`` (the helices unwind) or ``"initial"`` (the start is the rest shape).
     seed : random seed of the head scene's scalp roots (the other scenes are deterministic).
+    geometry : sphere-helical only; default :meth:`HelicalSphereGeometry.derive` (the derivation from
+        the seed's Table 8.1 box is in :class:`HelicalSphereGeometry`).
     Other keywords go to :class:`~headsim.solvers.chains.ChainOptions`."""
     if name not in SCENES:
         raise ParameterError(f"unknown drape scene {name!r}; choose one of {', '.join(SCENES)}")
@@ -275,15 +349,21 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         dur = 0.6 if duration is None else duration
     elif name in ("sphere-helical", "terrain"):
         F, n = n_fibres or 355, segments or 100
-        top = 0.12 if name == "sphere-helical" else 0.0
-        polys = list(_ringlet(F, n, length, 0.012, 0.008, (0.0, top, 0.0), spacing))
-        strand = (f"a vertical helical strand (centreline helix radius 1.2 cm, pitch 8 mm; fibres on a "
-                  f"{spacing * 1e6:.0f} µm hexagonal lattice across it; rest shape straight)")
         if name == "sphere-helical":
-            R = 0.05
-            obstacles = [Obstacle(SphereField((0.015, -R, 0.0), R), name="sphere")]
-            desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = {top * 100:g} cm, "
-                    f"sphere R = {R * 100:g} cm with its top at y = 0, offset 1.5 cm; friction {friction_mode}")
+            g = HelicalSphereGeometry.derive() if geometry is None else geometry
+            rho, pitch, top = g.helix_radius, g.pitch, g.root_height
+        else:
+            rho, pitch, top = 0.012, 0.008, 0.0
+        polys = list(_ringlet(F, n, length, rho, pitch, (0.0, top, 0.0), spacing))
+        strand = (f"a vertical helical strand (centreline helix radius {rho * 100:.3g} cm, pitch {pitch * 1e3:.3g} mm; "
+                  f"fibres on a {spacing * 1e6:.0f} µm hexagonal lattice across it; rest shape {rest_shape})")
+        if name == "sphere-helical":
+            R = g.sphere_radius
+            # centred under the helix axis (x = z = 0) unless offset, its top at y = 0
+            obstacles = [Obstacle(SphereField((g.sphere_offset, -R, 0.0), R), name="sphere")]
+            desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = {top * 100:.3g} cm, "
+                    f"sphere R = {R * 100:.3g} cm with its top at y = 0, centre {g.sphere_offset * 100:.3g} cm "
+                    f"from the helix axis; friction {friction_mode}")
         else:
             fld, mesh = _terrain_field()
             # iso-level offset (§8.6.5) = the bound of the trilinear interpolation error, (3/8) Δs² κ_max
@@ -343,6 +423,16 @@ def bounding_box(polylines: np.ndarray) -> tuple[np.ndarray, float]:
     p = np.asarray(polylines).reshape(-1, 3)
     ext = p.max(0) - p.min(0)
     return ext, float(np.prod(ext))
+
+
+def volume_stability(result: DrapeResult, window: float) -> tuple[float, float]:
+    """The seed's "stable volume" (§8.6.2) as two numbers: (max − min) / mean of the recorded frames'
+    bounding-box volumes (Table 8.1's measure) over the last ``window`` seconds, and the last step's
+    kinetic energy over its peak over the run (both dimensionless)."""
+    vol = np.array([bounding_box(p)[1] for p in result.polylines])
+    win = result.times >= result.times[-1] - window - 1e-12
+    spread = float((vol[win].max() - vol[win].min()) / vol[win].mean())
+    return spread, float(result.kinetic[-1] / max(result.kinetic.max(), 1e-300))
 
 
 def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: int | None = None,
