@@ -566,6 +566,11 @@ class FitProblem:
     def n_vertices(self) -> int:
         return self.model.n_vertices
 
+    @property
+    def contact_surfaces(self) -> np.ndarray:
+        """(t, 3) model ids of the skin and mask surfaces (the barrier contact's two components)."""
+        return np.vstack([self.tissue_triangles, self.mask_surface])
+
     def describe(self) -> dict:
         return {
             "face": self.face.name, "mask": self.mask.name, "face_vertices": int(self.face.n_vertices),
@@ -927,7 +932,7 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     if p.options.contact == "barrier":
         from headsim.solvers.barrier import BarrierContact
 
-        contact = BarrierContact(p.model.rest_positions, np.vstack([p.tissue_triangles, p.mask_surface]),
+        contact = BarrierContact(p.model.rest_positions, p.contact_surfaces,
                                  p.options.contact_layer, p.barrier_stiffness)
         return contact, attach
     mu = float(p.options.friction)
@@ -985,7 +990,7 @@ def _crosses(problem: FitProblem, positions: np.ndarray) -> bool:
     """True when skin and mask surfaces cross at ``positions`` (an inadmissible barrier start)."""
     from headsim.solvers.barrier import BarrierContact
 
-    probe = BarrierContact(problem.model.rest_positions, np.vstack([problem.tissue_triangles, problem.mask_surface]),
+    probe = BarrierContact(problem.model.rest_positions, problem.contact_surfaces,
                            problem.options.contact_layer, 1.0)
     return probe.intersecting(positions)
 

@@ -187,18 +187,11 @@ def warm_start_rows(keys, primary, warm_keys, warm_lam, warm_fr, fraction, lam, 
         fr[i, 1] = 0.0
         if not primary[i]:
             continue
-        k = keys[i]
-        lo, hi = 0, nw
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if warm_keys[mid] < k:
-                lo = mid + 1
-            else:
-                hi = mid
-        if lo < nw and warm_keys[lo] == k:
-            lam[i] = fraction * warm_lam[lo]
-            fr[i, 0] = fraction * warm_fr[lo, 0]
-            fr[i, 1] = fraction * warm_fr[lo, 1]
+        j = _find_key(warm_keys, keys[i], 0, nw)
+        if j >= 0:
+            lam[i] = fraction * warm_lam[j]
+            fr[i, 0] = fraction * warm_fr[j, 0]
+            fr[i, 1] = fraction * warm_fr[j, 1]
 
 
 @njit(cache=True)
