@@ -40,3 +40,18 @@ def coarse_problem():
 @lru_cache(maxsize=4)
 def coarse_fit(force: float):
     return problem_fit(coarse_problem(), force)
+
+
+@lru_cache(maxsize=1)
+def coarse_barrier_problem():
+    """The coarse problem with the barrier contact (FitOptions.contact="barrier")."""
+    from dataclasses import replace
+
+    face, lm = neutral()
+    return prepare_fit(face, make_mask("nasal-M", edge_length=5e-3, contour=False),
+                       replace(COARSE, contact="barrier"), landmarks=lm)
+
+
+@lru_cache(maxsize=2)
+def coarse_barrier_fit(force: float):
+    return problem_fit(coarse_barrier_problem(), force)

@@ -47,3 +47,14 @@ def test_step_fraction_stops_a_step_through_the_plate():
     frac = bc.step_fraction(v, np.zeros(0), v1, np.zeros(0))
     assert 0 < frac < 0.5  # the crossing happens at half the step
     assert not bc.intersecting(v + frac * (v1 - v))
+
+
+def test_vertices_within_names_the_primitives_closer_than_the_distance():
+    # vertex 3 hangs 0.1 above the plate; the small triangle's other two vertices 0.15
+    v, tri = _vertex_over_plate(0.1)
+    bc = BarrierContact(v, tri, 1e-3, 1.0)
+    assert not bc.vertices_within(v, 0.09).any()
+    near = bc.vertices_within(v, 0.12)
+    # the point-triangle pair of vertex 3 loads vertex 3 and the plate's three vertices
+    assert near.tolist() == [True, True, True, True, False, False]
+    assert bc.vertices_within(v, 0.2).all()

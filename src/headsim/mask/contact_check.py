@@ -15,6 +15,15 @@ true geometry of the deformed bodies, independent of those planes:
 - **cushion in skin**: vertices of the cushion's skin-side surface inside the closed tissue layer
   (the contact is one-sided, :mod:`headsim.mask.fit` "Contact"), their depth (m).
 
+What counts as "touching" follows the contact model that made the pressure. The lagged planes
+(``FitOptions.contact="planes"``) put pressure kappa x depth on a skin *vertex*, so a vertex with
+pressure must itself be inside the cushion (or within the tolerance of it). The barrier
+(``contact="barrier"``, :mod:`headsim.solvers.barrier`) acts between *primitives*: a cushion vertex
+pressing the middle of a skin triangle loads that triangle's three vertices, each up to a skin edge
+away. There a skin vertex with pressure is phantom when no point, edge or triangle it belongs to
+comes within the tolerance of the cushion (:meth:`BarrierContact.vertices_within`), and since the
+barrier's pressure stands for a positive gap, any depth inside the cushion is excess.
+
 Measured on the demo configuration (issue 6 follow-up, nasal-M at 4 mm, bundled face, default
 options): at 15 N 102 skin vertices inside (median 0.11 mm, max 0.56 mm deep; a penalty on the
 true depth would carry 208 N), 64 phantom contacts (true gap median 0.38 mm, max 8.3 mm) carrying
@@ -85,7 +94,8 @@ class ContactConsistency:
                 f"{self.max_phantom_gap * 1e3:.2f} mm outside the cushion and skin lies up to "
                 f"{self.max_excess_depth * 1e3:.2f} mm inside it unresisted (tolerance "
                 f"{self.tolerance * 1e3:.2f} mm): the nonlinear contact planes are stale (known defect, "
-                "headsim.mask.fit 'Contact consistency'); treat the seal and leak answers as unreliable")
+                "headsim.mask.fit 'Contact consistency'; --contact barrier avoids it); treat the seal and leak "
+                "answers as unreliable")
 
 
 def contact_consistency(problem, result) -> ContactConsistency:
@@ -101,8 +111,17 @@ def contact_consistency(problem, result) -> ContactConsistency:
     inside = cushion.contains(skin)
     dist = cushion.closest_points(skin).distance
     depth = np.where(inside, dist, 0.0)
-    excess = np.where(inside, dist - pressure / p.penalty, 0.0)
-    phantom = (~inside) & (pressure > 0)
+    if getattr(p.options, "contact", "planes") == "barrier":
+        from headsim.solvers.barrier import BarrierContact
+
+        tolerance = CONSISTENCY_EDGE_FRACTION * p.skin_edge
+        probe = BarrierContact(p.model.rest_positions, p.contact_surfaces, tolerance, 1.0)
+        touching = probe.vertices_within(x, tolerance)[p.skin_vertices]
+        excess = depth  # the barrier's pressure stands for a gap > 0, never for a depth
+        phantom = (~inside) & (pressure > 0) & ~touching
+    else:
+        excess = np.where(inside, dist - pressure / p.penalty, 0.0)
+        phantom = (~inside) & (pressure > 0)
     contact_force = pressure * p.skin_areas
     tissue_tets = p.model.tets[np.all(p.model.tets < p.n_tissue, axis=1)]
     # the boundary's topology from the rest mesh (a deformed state may hold inverted tets)

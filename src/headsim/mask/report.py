@@ -128,6 +128,8 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
         ("model", f"{d['model_vertices']} vertices, {d['model_tets']} tets"),
         ("solver", "condensed linear face + cushion, contact LCP (small-strain model, issue 6 interactive mode)"
          if getattr(fit, "mode", "nonlinear") == "condensed" else
+         "nonlinear FEM contact (finite strain, IPC barrier on the current surfaces, "
+         f"contact layer {problem.options.contact_layer * 1e6:.0f} um)" if problem.options.contact == "barrier" else
          "nonlinear FEM contact (finite strain, penalty on lagged cushion planes)"),
     ]
     return rows

@@ -38,7 +38,8 @@ class StudyOptions:
     search (:class:`headsim.mask.search.SearchOptions`); tissue_layers, crop_margin : the tissue
     model (:class:`headsim.mask.fit.FitOptions`); mask_edge : element size of the built-in masks;
     mode : "nonlinear" or "condensed" (:func:`headsim.mask.search.least_seal_force`);
-    friction : skin-cushion Coulomb coefficient of the nonlinear fit (FitOptions.friction)
+    friction : skin-cushion Coulomb coefficient of the nonlinear fit (FitOptions.friction);
+    contact : "planes" or "barrier", the nonlinear fit's contact model (FitOptions.contact)
     """
 
     units: str = "m"
@@ -52,6 +53,7 @@ class StudyOptions:
     mask_edge: float = 4e-3
     mode: str = "nonlinear"
     friction: float = 0.0  # frictionless, as FitOptions
+    contact: str = "planes"
 
 
 _SCHEMA = """CREATE TABLE IF NOT EXISTS cases (
@@ -117,7 +119,7 @@ def run_case(face_file: str, mask_name: str, options: dict) -> dict:
         face = load_surface(face_file, units=o.units)
         problem = prepare_fit(face, make_mask(mask_name, edge_length=o.mask_edge),
                               FitOptions(tissue_layers=o.tissue_layers, crop_margin=o.crop_margin,
-                                         friction=o.friction))
+                                         friction=o.friction, contact=o.contact))
         res = least_seal_force(problem, SearchOptions(start=o.start, maximum=o.maximum, abs_tol=o.abs_tol,
                                                       rel_tol=o.rel_tol, max_solves=o.max_solves),
                                mode=o.mode)

@@ -130,6 +130,22 @@ class BarrierContact:
         # ipctk returns the smallest *squared* distance
         return float(np.sqrt(c.compute_minimum_distance(self.mesh, v))) if len(c) else np.inf
 
+    def vertices_within(self, x: np.ndarray, distance: float) -> np.ndarray:
+        """(n,) bool: model vertices of a contact primitive (point, edge or triangle) that lies closer
+        than ``distance`` (m) to a primitive of another component at x -- the vertices a barrier with
+        that activation distance puts contact force on."""
+        c = self._ipc.NormalCollisions()
+        c.use_area_weighting = True
+        c.collision_set_type = self._ipc.NormalCollisions.IMPROVED_MAX_APPROX
+        v = self._surface(x)
+        c.build(self.mesh, v, float(distance))
+        out = np.zeros(self.n, dtype=bool)
+        edges, faces = self.mesh.edges, self.mesh.faces
+        local = [i for k in range(len(c)) for i in c[k].vertex_ids(edges, faces) if i >= 0]
+        if local:
+            out[self.ids[np.unique(np.asarray(local, dtype=np.int64))]] = True
+        return out
+
     def intersecting(self, x: np.ndarray) -> bool:
         """True when two contact components cross at x."""
         return bool(self._ipc.has_intersections(self.mesh, self._surface(x)))
