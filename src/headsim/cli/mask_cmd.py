@@ -89,7 +89,7 @@ MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM co
                     "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
 CONTACT = typer.Option("planes", "--contact", help="nonlinear mode's contact: planes (lagged-plane penalty, fast; "
                        "known to put pressure where the surfaces no longer touch, see the contact check) or barrier "
-                       "(IPC barrier on the current surfaces: consistent, never interpenetrates; about 20x slower)")
+                       "(IPC barrier on the current surfaces: consistent, never interpenetrates; about 15x slower)")
 
 
 def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes") -> str:
