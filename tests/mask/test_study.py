@@ -101,3 +101,30 @@ def test_a_store_from_before_the_leak_column_is_upgraded(tmp_path):
     store.close()
     assert rows["nasal-M"]["least_acceptable_leak_force_n"] == 7.5
     assert rows["nasal-S"]["least_acceptable_leak_force_n"] is None and rows["nasal-S"]["status"] == "no-seal"
+
+
+def test_a_resumed_study_refuses_other_settings(faces, tmp_path):
+    """Cases computed with one contact model (or force range, mesh size...) are never mixed with
+    another's in one store: the second run stops with the differing settings named."""
+    out = tmp_path / "study"
+    run_study(faces, ["nasal-M"], out, processes=False, case_fn=fake_case, max_new_cases=1)
+    with pytest.raises(ParameterError, match="contact='planes'.*contact='barrier'"):
+        run_study(faces, ["nasal-M"], out, options=StudyOptions(contact="barrier"), processes=False,
+                  case_fn=fake_case)
+    with pytest.raises(ParameterError, match="maximum"):
+        run_study(faces, ["nasal-M"], out, options=StudyOptions(maximum=40.0), processes=False, case_fn=fake_case)
+    # the same settings resume
+    s = run_study(faces, ["nasal-M"], out, processes=False, case_fn=fake_case)
+    assert s["n_reused"] == 1 and s["n_computed"] == 2
+
+
+def test_a_store_without_recorded_settings_resumes_only_at_the_defaults(tmp_path):
+    path = tmp_path / "cases.sqlite"
+    store = CaseStore(path)
+    store.put({"face": "f", "mask": "nasal-S", "status": "no-seal"})
+    store._db.execute("DELETE FROM settings")  # as a store written before settings were recorded
+    store._db.commit()
+    with pytest.raises(ParameterError, match="friction"):
+        store.check_settings(StudyOptions(friction=0.5))
+    store.check_settings(StudyOptions())
+    store.close()

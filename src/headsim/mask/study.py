@@ -64,6 +64,8 @@ _SCHEMA = """CREATE TABLE IF NOT EXISTS cases (
     PRIMARY KEY (face, mask))"""
 #: columns added after the first schema: (name, SQL type), added to an older store when it is opened
 _ADDED_COLUMNS = (("least_acceptable_leak_force_n", "REAL"),)
+#: the study settings the stored cases were computed with (StudyOptions field -> JSON value)
+_SETTINGS_SCHEMA = "CREATE TABLE IF NOT EXISTS settings (key TEXT PRIMARY KEY, value TEXT NOT NULL)"
 
 
 class CaseStore:
@@ -79,6 +81,25 @@ class CaseStore:
         for name, kind in _ADDED_COLUMNS:
             if name not in have:
                 self._db.execute(f"ALTER TABLE cases ADD COLUMN {name} {kind}")
+        self._db.execute(_SETTINGS_SCHEMA)
+        self._db.commit()
+
+    def check_settings(self, options: "StudyOptions") -> None:
+        """Record ``options`` in a new store; in a store that holds cases, refuse (ParameterError)
+        options other than those its cases were computed with, so that a resumed study never mixes
+        answers of two models (e.g. ``--contact planes`` and ``barrier``). A setting the store does
+        not record (a store from before it existed) must be at its default."""
+        stored = dict(self._db.execute("SELECT key, value FROM settings"))
+        wanted = {k: json.dumps(v) for k, v in asdict(options).items()}
+        if stored or self.done():
+            default = {k: json.dumps(v) for k, v in asdict(StudyOptions()).items()}
+            differ = sorted(k for k in wanted if stored.get(k, default[k]) != wanted[k])
+            if differ:
+                was = ", ".join(f"{k}={json.loads(stored.get(k, default[k]))!r}" for k in differ)
+                now = ", ".join(f"{k}={json.loads(wanted[k])!r}" for k in differ)
+                raise ParameterError(f"{self.path} holds cases computed with {was}; this study asks for {now}: "
+                                     "use another output folder, or the same settings to resume")
+        self._db.executemany("INSERT OR REPLACE INTO settings (key, value) VALUES (?, ?)", wanted.items())
         self._db.commit()
 
     def done(self) -> set[tuple[str, str]]:
@@ -243,6 +264,11 @@ def run_study(faces_dir: str | os.PathLike, masks: Sequence[str], out: str | os.
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     store = CaseStore(out / "cases.sqlite")
+    try:
+        store.check_settings(options)
+    except ParameterError:
+        store.close()
+        raise
     done = store.done()
     todo = [(f, m) for f in files for m in masks if (f.stem, m) not in done]
     n_total = len(files) * len(masks)
