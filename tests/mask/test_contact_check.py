@@ -123,3 +123,16 @@ def test_cli_contact_option_reaches_the_fit_and_study_options():
 
     assert mask_cmd.CONTACT.default == FitOptions().contact == StudyOptions().contact == "planes"
     assert mask_cmd._options(1, 8.0, 980.0, 4.3, "auto", contact="barrier").contact == "barrier"
+
+
+def test_barrier_report_names_the_contact_model_and_its_clean_check(tmp_path):
+    import json
+
+    from headsim.mask.report import write_fit_report
+
+    p = coarse_barrier_problem()
+    fit = coarse_barrier_fit(15.0)
+    write_fit_report(tmp_path, p, fit)
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert result["contact_check"]["consistent"] is True and result["contact_check"]["n_phantom"] == 0
+    assert "IPC barrier" in (tmp_path / "report.html").read_text()
