@@ -153,7 +153,7 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
     _check_mode(mode, friction, contact)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact)
-    with typer.progressbar(length=1, label=f"fit at {force:g} N ({mode})") as bar:
+    with typer.progressbar(length=1, label=f"fit at {force:g} N ({mode}{', ' + contact + ' contact' if mode == 'nonlinear' else ''})") as bar:
         if mode == "condensed":
             from headsim.mask.condensed import condense_fit, condensed_fit
 
