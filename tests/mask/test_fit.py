@@ -122,3 +122,12 @@ def test_options_are_validated():
         FitOptions(tissue_layers=0)
     with pytest.raises(ParameterError):
         FitOptions(crop_margin=-1.0)
+
+
+def test_fit_reports_newton_progress_until_the_residual_meets_the_tolerance():
+    calls = []
+    fit = problem_fit(coarse_problem(), 8.0, progress=lambda it, g, tol: calls.append((it, g, tol)))
+    its = [c[0] for c in calls]
+    assert its == sorted(its) and len(calls) >= fit.newton_iterations
+    last_it, last_g, last_tol = calls[-1]
+    assert last_it == fit.newton_iterations and last_g <= last_tol  # the call that ended the solve

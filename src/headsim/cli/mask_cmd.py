@@ -153,14 +153,21 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
     _check_mode(mode, friction, contact)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact)
-    with typer.progressbar(length=1, label=f"fit at {force:g} N ({mode}{', ' + contact + ' contact' if mode == 'nonlinear' else ''})") as bar:
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    label = f"fit at {force:g} N ({mode}{', ' + contact + ' contact' if mode == 'nonlinear' else ''})"
+    with Progress(SpinnerColumn(), TextColumn(label), TextColumn("{task.fields[msg]}"), TimeElapsedColumn(),
+                  transient=True) as bar:
+        task = bar.add_task("fit", total=None, msg="")
         if mode == "condensed":
             from headsim.mask.condensed import condense_fit, condensed_fit
 
             result = condensed_fit(condense_fit(problem), force)
         else:
-            result = problem_fit(problem, force)
-        bar.update(1)
+            def progress(it, gnorm, tol):
+                bar.update(task, msg=f"Newton iteration {it}: force residual {gnorm:.2e} N (tolerance {tol:.1e} N)")
+
+            result = problem_fit(problem, force, progress=progress)
     check = fit_contact_check(problem, result)
     with atomic_output_dir(out) as tmp:
         write_fit_report(tmp, problem, result, contact_check=check)

@@ -969,7 +969,7 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     return contact, attach
 
 
-def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float):
+def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float, progress=None):
     from headsim.solvers.contact import QuasiStaticOptions, solve_quasi_static
 
     p = problem
@@ -986,7 +986,7 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float):
                               force_tolerance=FORCE_TOL * force_scale,
                               inexact_updates=INEXACT_UPDATES if p.options.friction == 0 and not barrier else None)
     res = solve_quasi_static(p.model, [contact, attach], drivers, initial_positions=x0, initial_drivers=u0,
-                             options=opts)
+                             options=opts, progress=progress)
     return res, contact
 
 
@@ -1020,8 +1020,13 @@ def _crosses(problem: FitProblem, positions: np.ndarray) -> bool:
     return probe.intersecting(positions)
 
 
-def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | None = None) -> FitResult:
-    """One force-controlled equilibrium on a prepared problem (see :func:`fit_mask`)."""
+def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | None = None,
+                progress=None) -> FitResult:
+    """One force-controlled equilibrium on a prepared problem (see :func:`fit_mask`).
+
+    progress : optional ``progress(newton_iterations, |g|_inf, tolerance)`` (N), called before every
+        Newton iteration of the solve (a progress display; :func:`headsim.solvers.solve_quasi_static`).
+    """
     from headsim.solvers.contact import RigidDriver
 
     force = check_force(force)
@@ -1044,7 +1049,7 @@ def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | Non
             errors.append("warm start discarded: skin and cushion cross there")
             continue
         try:
-            res, contact = _solve(p, drivers, x0, u0, force)
+            res, contact = _solve(p, drivers, x0, u0, force, progress)
         except (ConvergenceError, DivergenceError) as e:
             errors.append(str(e))
             continue

@@ -158,7 +158,8 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
     """Search the least strap force that seals (module doc).
 
     problem : from :func:`headsim.mask.fit.prepare_fit`
-    progress : called as progress(solves_done, max_solves, message) after each fit
+    progress : called as progress(solves_done, max_solves, message) after each fit (and, in the
+        nonlinear mode, before every Newton iteration of the fit in progress)
     mode : "nonlinear" (every fit by :func:`headsim.mask.fit.problem_fit`) or "condensed" (the linear
         condensed model of :mod:`headsim.mask.condensed`, condensed once at the start; its time counts)
     """
@@ -184,8 +185,15 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
         if fits:
             near = min(fits, key=lambda g: abs(g - f))
             warm = fits[near].state
+        extra = {}
+        if progress is not None and mode == "nonlinear":
+            def newton_progress(it, gnorm, tol):
+                progress(len(fits), options.max_solves,
+                         f"{f:.2f} N: Newton iteration {it}, force residual {gnorm:.1e} N")
+
+            extra["progress"] = newton_progress
         try:
-            r = fitter(problem, f, warm_start=warm)
+            r = fitter(problem, f, warm_start=warm, **extra)
         except ConvergenceError as e:
             if not fits:
                 raise

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -596,7 +596,8 @@ class QuasiStaticResult:
 def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Sequence[RigidDriver] = (), *,
                        initial_positions: np.ndarray | None = None, initial_drivers: np.ndarray | None = None,
                        fixed_dofs: np.ndarray | None = None,
-                       options: QuasiStaticOptions = QuasiStaticOptions()) -> QuasiStaticResult:
+                       options: QuasiStaticOptions = QuasiStaticOptions(),
+                       progress: Callable[[int, float, float], None] | None = None) -> QuasiStaticResult:
     """Static equilibrium: minimise E_model(x) + sum contact(x, u) - sum F_k u_k.
 
     model : MassSpringModel or FemModel (its ``fixed`` vertices stay at ``initial_positions``)
@@ -605,6 +606,8 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
     initial_positions : (n, 3) m warm start (default: rest positions); fixed vertices keep these
     initial_drivers : (r,) m warm start of the driver translations
     fixed_dofs : (n, 3) bool, optional per-component constraints (symmetry planes) added to ``fixed``
+    progress : called as ``progress(newton_iterations_so_far, |g|_inf, tolerance)`` (N) before every
+        Newton iteration (:func:`headsim.solvers.newton.minimize_newton`)
     """
     x0 = np.array(model.rest_positions if initial_positions is None else initial_positions, dtype=np.float64)
     n = len(x0)
@@ -690,9 +693,12 @@ def solve_quasi_static(model, contacts: Sequence[ContactTerm] = (), drivers: Seq
         # between contact updates: converged at inexact_updates x the solve's starting |g| (or the tolerance)
         inner = newton if finishing else replace(
             newton, relative_tolerance=max(newton.relative_tolerance, options.inexact_updates))
+        done_before = total_it
         res = minimize_newton(energy, gradient, hessian, z, free, inner, near_null=near_null,
                               what="quasi-static contact solve", amg_cache=amg_cache,
-                              step_limit=step_limit if limited else None)
+                              step_limit=step_limit if limited else None,
+                              progress=None if progress is None else
+                              (lambda it, g, t: progress(done_before + it, g, t)))
         z = res.z
         total_it += res.iterations
         for k, v in res.timings.items():

@@ -370,6 +370,7 @@ def minimize_newton(
     what: str = "Newton solve",
     amg_cache: dict | None = None,
     step_limit: Callable[[np.ndarray, np.ndarray], float] | None = None,
+    progress: Callable[[int, float, float], None] | None = None,
 ) -> NewtonResult:
     """Minimise ``energy`` over the entries of ``z`` where ``free`` is True.
 
@@ -380,11 +381,12 @@ def minimize_newton(
     outer contact loop). ``step_limit(z, dz)`` -> largest admissible fraction of the step ``dz`` (in
     (0, 1]; e.g. the collision-free step of a barrier contact's continuous collision detection, Li et
     al. 2020 sec. 4.3): the line search starts there. The result carries CPU seconds per phase
-    (``timings``).
+    (``timings``). ``progress(iteration, |g|_inf, tolerance)`` (N) is called before every iteration
+    (a progress display for long solves).
     """
     with blas_threads(options.blas_threads):
         return _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, what,
-                                {} if amg_cache is None else amg_cache, step_limit)
+                                {} if amg_cache is None else amg_cache, step_limit, progress)
 
 
 def _forcing_term(options: NewtonOptions, g2: float, g2_prev: float | None, eta_prev: float | None,
@@ -404,7 +406,7 @@ def _forcing_term(options: NewtonOptions, g2: float, g2_prev: float | None, eta_
 
 
 def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, what, amg_cache,
-                     step_limit=None) -> NewtonResult:
+                     step_limit=None, progress=None) -> NewtonResult:
     timer = _PhaseTimer()
     z = np.array(z0, dtype=np.float64)
     free = np.asarray(free, dtype=bool)
@@ -441,6 +443,8 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
                             (pre.setups - setups0) if pre else 0, tol)
 
     for it in range(options.max_iterations):
+        if progress is not None:
+            progress(it, gnorm, tol)
         if gnorm <= tol:
             return result(it)
         g2 = float(np.linalg.norm(g))
