@@ -55,6 +55,9 @@ def _time(solver, scene, state, steps):
         for k in ("contacts", "contact_rows", "candidate_rows", "promoted_rows"):
             counts.setdefault(k, []).append(getattr(st, k))
         counts.setdefault("max_penetration", []).append(st.max_penetration)
+        counts.setdefault("qp_sweeps", []).append(st.qp_sweeps)
+        counts.setdefault("qp_capped", []).append(st.qp_capped)
+        counts.setdefault("max_joint_gap", []).append(st.max_joint_gap)
         counts.setdefault("kinetic_energy", []).append(st.kinetic_energy)
     counts = {k: float(np.mean(v)) for k, v in counts.items()}
     return state, (time.perf_counter() - w0) / steps, (time.process_time() - c0) / steps, phases, counts
@@ -70,17 +73,31 @@ def main():
     ap.add_argument("--friction", default="aniso")
     ap.add_argument("--coupled-only", action="store_true",
                     help="time the coupled solver only (the per-body stages take minutes per step at full size)")
+    ap.add_argument("--geometry", choices=("derived", "former"), default="derived",
+                    help="sphere-helical geometry: the default derived from Table 8.1, or the former ringlet start "
+                         "(HelicalSphereGeometry.former(), in contact with itself from the first steps)")
+    ap.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
+                    help="ChainOptions override (Python literal), e.g. --set joint_gap_fraction=1.0")
     args = ap.parse_args()
+    import ast
+
     import numba
 
-    from headsim.hair.drape import build_drape_scene
+    from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
     from headsim.solvers.chains import ChainSolver
+
+    overrides = {}
+    for kv in args.set:
+        k, v = kv.split("=", 1)
+        overrides[k] = ast.literal_eval(v)
+    geometry = HelicalSphereGeometry.former() if args.geometry == "former" else None
+    print(f"geometry {args.geometry}, option overrides {overrides}")
 
     print(f"load average {os.getloadavg()}, numba threads {numba.get_num_threads()}")
     timed = {}
     for coupling in ("coupled",) if args.coupled_only else ("coupled", "per-body"):
         scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
-                                  contact_coupling=coupling)
+                                  geometry=geometry, contact_coupling=coupling, **overrides)
         solver = ChainSolver(scene.options)
         state = scene.state
         t0 = time.perf_counter()
@@ -94,7 +111,9 @@ def main():
                 f"{nc['promoted_rows']:.0f})") if coupling == "coupled" else ""
         print(f"[{coupling}] {scene.model.n_segments} segments, t = {state.time:.3f} s, mean active contacts "
               f"{nc['contacts']:.0f}{rows}, max penetration {nc['max_penetration']:.3e} m, "
-              f"kinetic energy {nc['kinetic_energy']:.4e} J")
+              f"kinetic energy {nc['kinetic_energy']:.4e} J, max joint gap {nc['max_joint_gap']:.3e} m, "
+              f"Gauss–Seidel sweeps (largest solve) {nc['qp_sweeps']:.0f}, solves per step ending at the sweep "
+              f"cap {nc['qp_capped']:.1f}")
         print(f"[{coupling}] batched: {wall:.4f} s/step wall, {cpu:.4f} s/step CPU; phases (s/step): "
               + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in phases.items()))
         if coupling == "per-body":
