@@ -993,8 +993,12 @@ class ChainSolver:
             u = np.ascontiguousarray(u_minus.copy())
             if self._gathered is None or self._gathered[0] is not rows:  # once per detection
                 pr, n_rows = _kernel_rows(rows)
-                geo = tuple(np.ascontiguousarray(a[pr]) for a in (rows.body, rows.partner, rows.normal, rows.lever,
-                                                                   rows.partner_lever))
+                n = len(pr)
+                geo = (np.empty(n, np.int64), np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)),
+                       np.empty((n, 3)))
+                gather = KP.gather_rows_parallel if model.n_segments >= o.parallel_threshold else KP.gather_rows
+                gather(pr, *(np.ascontiguousarray(a) for a in (rows.body, rows.partner, rows.normal, rows.lever,
+                                                                rows.partner_lever)), *geo)
                 self._gathered = (rows, pr, n_rows, geo)
             _, pr, n_rows, geo = self._gathered
             tg, lam_p, fr_p = np.empty(len(pr)), np.empty(len(pr)), np.empty((len(pr), 2))
