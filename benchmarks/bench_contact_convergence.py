@@ -13,7 +13,12 @@ the largest joint gap-rate residual (m/s; × ½Δt = the joint gap it leaves, m)
 normal impulses (N s; growing without bound would mean an infeasible row set).
 
 Usage: python benchmarks/bench_contact_convergence.py [--fibres 120] [--segments 50] [--settle 5]
-       [--sweeps 60 120 300 1000 10000]
+       [--sweeps 60 120 300 1000 10000] [--geometry former|derived] [--set OPTION=VALUE ...]
+
+Besides the fixed counts, the stopping rule (``ChainOptions.contact_tolerance``) is run with the shipped cap
+(``qp_iterations``) and without one. ``--geometry`` defaults to ``former`` (the ringlet start all numbers
+below were measured on); ``--set`` overrides ChainOptions (e.g. ``--set joint_gap_fraction=1.0``, the
+former joint-gap targets).
 
 Measured (branch ``speed``, 2 shared cores, load 1.5–2.5; 120 × 50 ringlet, 6,000 segments, solve at
 t = 5 ms with 32.9 k rows and ≈ 1,000 contacts carrying impulse; the reference is 10,000 sweeps, where the
@@ -53,6 +58,32 @@ step conflicts with the contacts once the strand rests; on the ringlet start (12
 targets are not the problem (zeroing them leaves the convergence as slow: 0.40 / 0.10 / 2.3e-4 off its
 own 10,000-sweep answer at 60 / 300 / 2,000 sweeps). A softer joint-gap target (a fraction of the gap per
 step, or a compliant joint row) would make the resting problem feasible; not tried here.
+
+Branch ``gs`` (issue 10; joint-gap targets now ``joint_gap_fraction`` γ, default 0: the contact solve keeps
+every joint's anchors moving together, J u⁺ = 0, and leaves the position drift to the next step's joint
+stage; the solve stops on ``contact_tolerance`` = 1e-5 m/s, cap 60 sweeps). Same session, 2 shared cores,
+load 3–4 (CPU times unreliable, not quoted):
+
+* Settling strand (``--fibres 40 --segments 30 --settle 1500 --sweeps 60 300 3000 10000 40000``, each run on
+  its own trajectory, t = 1.5 s): γ = 1 (``--set joint_gap_fraction=1.0``) reproduces the growth (largest
+  normal impulse 1.6e-8 / 3.3e-8 / 1.5e-7 / 3.9e-7 / 6.6e-7 N s, 60 sweeps 0.75 off its 40,000-sweep
+  answer); γ = 0: bounded (largest 6.9e-9 … 1.6e-8 N s, sum 3.2e-7 … 3.6e-7 N s ≈ the strand's weight
+  impulse per step) and convergent (last change 1.8e-9 m/s at 40,000 sweeps, violation 3e-10 m/s);
+  60 / 300 / 3,000 / 10,000 sweeps are 0.073 / 0.055 / 0.022 / 0.0021 off. (With the stopping rule on
+  the trajectory: 60 sweeps 0.12 off; the rule at 1e-4 m/s needs 7,219 sweeps there and is then still
+  1.6e-2 off with a largest velocity error of 1.45e-3 m/s = 14 × the residual: slow convergence.)
+* Ringlet start (defaults, t = 5 ms, 32.8 k rows), γ = 1 → γ = 0 at the shipped 60 sweeps: rel. M-error
+  0.310 → 0.466, but the error itself is smaller: ½‖u − u_ref‖²_M 2.30e-9 → 1.94e-9 J, max |Δv| 2.48e-2 →
+  2.45e-2 m/s, max violation 1.37e-2 → 1.36e-2 m/s, max joint residual 7.9e-3 → 6.9e-3 m/s (the relative
+  error is larger because the correction it is divided by is smaller: γ = 0 demands no gap-closing
+  velocities). 100 sweeps: 2.39e-1 → 3.55e-1 rel., 1.37e-9 → 1.12e-9 J. The stopping rule without a cap
+  stops after 2,892 (γ = 1) / 3,249 (γ = 0) sweeps at a residual of 1e-5 m/s, 2.3e-4 / 1.2e-4 off (max
+  |Δv| 3.8e-5 / 1.7e-5 m/s); with the cap of 60 both runs end at the cap (counted in
+  ``StepStats.qp_capped``), i.e. on this scene the answer is the 60-sweep one, at least as accurate as
+  before in absolute terms, not faster.
+
+The joint-eliminated (Schur-complement) Gauss–Seidel of the prototype above was not landed: at the
+shipped accuracy it was not faster (≈ 0.15 s CPU for the 0.31 error either way), only at tighter ones.
 """
 
 from __future__ import annotations
@@ -90,13 +121,23 @@ def main():
     ap.add_argument("--settle", type=int, default=5)
     ap.add_argument("--friction", default="aniso")
     ap.add_argument("--sweeps", type=int, nargs="+", default=[60, 120, 300, 1000, 10000])
+    ap.add_argument("--geometry", choices=("derived", "former"), default="former",
+                    help="sphere-helical geometry (default: the former ringlet start the table below was measured on)")
+    ap.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
+                    help="ChainOptions override (Python literal), e.g. --set joint_gap_fraction=1.0")
     args = ap.parse_args()
-    from headsim.hair.drape import build_drape_scene
+    import ast
+
+    from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
     from headsim.solvers import chains as C
     from headsim.solvers._kernels import chains_coupled as KC
 
     print(f"load average {os.getloadavg()}")
-    scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments)
+    overrides = {k: ast.literal_eval(v) for k, v in (kv.split("=", 1) for kv in args.set)}
+    print(f"geometry {args.geometry}, option overrides {overrides}")
+    geometry = HelicalSphereGeometry.former() if args.geometry == "former" else None
+    scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
+                              geometry=geometry, **overrides)
     solver = C.ChainSolver(scene.options)
     state = scene.state
     for _ in range(args.settle):
@@ -134,9 +175,21 @@ def main():
         results[n] = (time.process_time() - c, a[16], sw, change, _residuals(a, a[16]), a[25].max(initial=0.0),
                       a[25].sum())
     ref = results[max(results)][1]
+    # the stopping rule (ChainOptions.contact_tolerance) with the cap of the shipped options and without a cap
+    tol = float(scene.options.contact_tolerance)
+    for label, cap in ((f"tol {tol:g}, cap {scene.options.qp_iterations}", scene.options.qp_iterations),
+                       (f"tol {tol:g}, no cap", max(results))):
+        a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0]
+        a[23], a[24] = int(cap), tol
+        c = time.process_time()
+        sw, change, _ = KC.coupled_iterate(*a)
+        results[label] = (time.process_time() - c, a[16], sw, change, _residuals(a, a[16]), a[25].max(initial=0.0),
+                          a[25].sum())
     for n, (cpu, u, sw, change, (viol, jr), lmax, lsum) in results.items():
         err = np.sqrt(m2(u - ref) / m2(ref - u_minus))
-        print(f"{n:6d} sweeps ({sw}): CPU {cpu:.3f} s, last change {change:.2e} m/s, rel. M-error {err:.3e}, "
+        eabs = 0.5 * m2(u - ref)
+        print(f"{n:>6} sweeps ({sw}): CPU {cpu:.3f} s, last change {change:.2e} m/s, rel. M-error {err:.3e} "
+              f"(½‖u − u_ref‖²_M {eabs:.2e} J), "
               f"max |dv| {np.abs(u - ref)[:, :3].max():.2e} m/s, max violation {viol:.2e} m/s, "
               f"max joint residual {jr:.2e} m/s, normal impulses max {lmax:.3e} / sum {lsum:.4e} N s")
 

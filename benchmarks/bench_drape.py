@@ -3,7 +3,15 @@
 algorithm in the same run. Goal ≤ 0.2 s per step on 2 cores (seed: 30–180 s per step, serial).
 
 Usage: python benchmarks/bench_drape.py [--fibres 355] [--segments 100] [--settle 30] [--steps 5]
-       [--loop-steps 1] [--friction aniso] [--coupled-only]
+       [--loop-steps 1] [--friction aniso] [--coupled-only] [--geometry derived|former]
+       [--set OPTION=VALUE ...]
+
+``--geometry former`` is the ringlet start (:meth:`HelicalSphereGeometry.former`) all the timings below
+were measured on: the strand is in contact with itself from the first steps. The default derived
+geometry hangs 2.8 cm above the sphere: at t = 5 ms it has no active contacts (168 k rows, 868 k
+candidates; 0.94 s per step, load 1.0, branch ``gs``), so short runs of it do not exercise the contact
+stage. ``--set`` overrides ChainOptions (e.g. ``--set joint_gap_fraction=1.0 --set contact_tolerance=1e-9``:
+the former joint-gap targets and fixed 60 sweeps, which reproduce the former states exactly).
 
 The scene is first advanced ``--settle`` steps (so the strand is in contact with itself and the
 sphere), then ``--steps`` steps are timed with the batched solver; the loop baseline (``fibre_loop=True``:
@@ -24,6 +32,26 @@ the commits up to the one that added this paragraph; same process command, alter
 * Reduced: ``--fibres 120 --segments 50 --settle 5 --steps 2 --loop-steps 1`` (load 0.8–1.3): coupled
   0.84 → 0.80 s per step (within the noise; the changes act on the ≈ 2 M pairs of the full scene),
   per-body 6.2 / 6.5 s, one fibre at a time 9.9 / 9.5 s.
+
+Branch ``gs`` (issue 10: joint rows J u = 0 in the contact solve, ``joint_gap_fraction`` = 0; stopping rule
+``contact_tolerance`` = 1e-5 m/s with the 60-sweep cap; the rows' gather in one Numba pass). Same session,
+alternating runs, before = commit dbd7b37 (its source tree, same benchmark script), ``--geometry former``:
+
+* Reference ``--fibres 355 --segments 100 --settle 3 --steps 3 --coupled-only`` (load 1.05–1.40): before
+  5.00 / 4.74 s per step wall (contacts 3.31 / 3.14 s, detection 1.47 / 1.39 s), after 4.70 / 4.63 s
+  (contacts 2.95 / 2.96 s, detection 1.55 / 1.41 s, joints 0.09–0.11 s). All three contact solves of every
+  step still end at the 60-sweep cap (``qp_capped`` = 3): the stopping rule does not shorten them on this
+  scene. The states differ (joint targets): 6,946 → 6,608 active contacts, max joint gap 19.5 → 14.7 µm,
+  max penetration 68.9 → 67.5 µm, kinetic energy 5.734e-5 → 5.709e-5 J; the ≈ 0.3 s less in the contact
+  phase is the gather (0.42 s per step in the former NumPy gathers, cProfile).
+* Reduced ``--fibres 120 --segments 50 --settle 5 --steps 2 --coupled-only`` (load 1.6): before 0.59 / 0.45,
+  after 0.44 / 0.50 s per step (noise); max joint gap 18.8 → 4.6 µm, penetration 48.6 → 45.1 µm.
+* Settled strand ``--fibres 40 --segments 30 --settle 1500 --steps 20 --coupled-only`` (t = 1.5 s, load 1.4–1.6,
+  each on its own trajectory; before = the ``--set`` options above): 0.049 → 0.055 s per step, every
+  solve at the cap in both; max penetration 126 / 140 µm (3.6–4 fibre radii), joint gap 13.7 / 11.6 µm.
+* Goal 0.2 s: still ≈ 23× off. A process-time CPU profile of one reference step (t = 6 ms): Gauss–Seidel
+  iterations 2.04 s (3 × 0.68 s, 11 ms per sweep), pair rows 0.28 s, joint-duplicate filter 0.18 s, pair
+  sort 0.16 s, BVH query threads ≈ 0.23 s, set-ups 0.12 s. Detection was not changed here.
 
 What limits the speed (``bench_contact_convergence.py``): the 60 sweeps are far from converged (velocity
 correction 31 % off its converged value), so fewer sweeps would change the physics, and the shipped
@@ -55,6 +83,9 @@ def _time(solver, scene, state, steps):
         for k in ("contacts", "contact_rows", "candidate_rows", "promoted_rows"):
             counts.setdefault(k, []).append(getattr(st, k))
         counts.setdefault("max_penetration", []).append(st.max_penetration)
+        counts.setdefault("qp_sweeps", []).append(st.qp_sweeps)
+        counts.setdefault("qp_capped", []).append(st.qp_capped)
+        counts.setdefault("max_joint_gap", []).append(st.max_joint_gap)
         counts.setdefault("kinetic_energy", []).append(st.kinetic_energy)
     counts = {k: float(np.mean(v)) for k, v in counts.items()}
     return state, (time.perf_counter() - w0) / steps, (time.process_time() - c0) / steps, phases, counts
@@ -70,17 +101,31 @@ def main():
     ap.add_argument("--friction", default="aniso")
     ap.add_argument("--coupled-only", action="store_true",
                     help="time the coupled solver only (the per-body stages take minutes per step at full size)")
+    ap.add_argument("--geometry", choices=("derived", "former"), default="derived",
+                    help="sphere-helical geometry: the default derived from Table 8.1, or the former ringlet start "
+                         "(HelicalSphereGeometry.former(), in contact with itself from the first steps)")
+    ap.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
+                    help="ChainOptions override (Python literal), e.g. --set joint_gap_fraction=1.0")
     args = ap.parse_args()
+    import ast
+
     import numba
 
-    from headsim.hair.drape import build_drape_scene
+    from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
     from headsim.solvers.chains import ChainSolver
+
+    overrides = {}
+    for kv in args.set:
+        k, v = kv.split("=", 1)
+        overrides[k] = ast.literal_eval(v)
+    geometry = HelicalSphereGeometry.former() if args.geometry == "former" else None
+    print(f"geometry {args.geometry}, option overrides {overrides}")
 
     print(f"load average {os.getloadavg()}, numba threads {numba.get_num_threads()}")
     timed = {}
     for coupling in ("coupled",) if args.coupled_only else ("coupled", "per-body"):
         scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
-                                  contact_coupling=coupling)
+                                  geometry=geometry, contact_coupling=coupling, **overrides)
         solver = ChainSolver(scene.options)
         state = scene.state
         t0 = time.perf_counter()
@@ -94,7 +139,9 @@ def main():
                 f"{nc['promoted_rows']:.0f})") if coupling == "coupled" else ""
         print(f"[{coupling}] {scene.model.n_segments} segments, t = {state.time:.3f} s, mean active contacts "
               f"{nc['contacts']:.0f}{rows}, max penetration {nc['max_penetration']:.3e} m, "
-              f"kinetic energy {nc['kinetic_energy']:.4e} J")
+              f"kinetic energy {nc['kinetic_energy']:.4e} J, max joint gap {nc['max_joint_gap']:.3e} m, "
+              f"Gauss–Seidel sweeps (largest solve) {nc['qp_sweeps']:.0f}, solves per step ending at the sweep "
+              f"cap {nc['qp_capped']:.1f}")
         print(f"[{coupling}] batched: {wall:.4f} s/step wall, {cpu:.4f} s/step CPU; phases (s/step): "
               + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in phases.items()))
         if coupling == "per-body":

@@ -168,6 +168,7 @@ class DrapeResult:
     max_penetration: np.ndarray  # (steps,) m
     newton_iterations: np.ndarray
     qp_sweeps: np.ndarray
+    qp_capped: np.ndarray  # (steps,) contact solves of the step that ended at the sweep cap (no tolerance met)
     seconds: dict = field(default_factory=dict)  # summed per-phase wall time, s
 
 
@@ -448,7 +449,7 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
     state = scene.state
     times, frames = [0.0], [polylines_from_state(scene.model, state)]
     cols = {k: [] for k in ("step_time", "kinetic", "total_energy", "contacts", "fibre_contacts", "obstacle_contacts",
-                            "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps")}
+                            "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps", "qp_capped")}
     secs: dict[str, float] = {}
     for i in range(steps):
         state = solver.step(scene.model, state, scene.dt, scene.obstacles)
@@ -462,7 +463,7 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
         cols["kinetic"].append(st.kinetic_energy)
         cols["total_energy"].append(st.total_energy)
         for k in ("contacts", "fibre_contacts", "obstacle_contacts", "max_joint_gap", "max_penetration",
-                  "newton_iterations", "qp_sweeps"):
+                  "newton_iterations", "qp_sweeps", "qp_capped"):
             cols[k].append(getattr(st, k))
         for k, v in st.seconds.items():
             secs[k] = secs.get(k, 0.0) + v
@@ -492,7 +493,7 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
                         fibre_contacts=result.fibre_contacts, obstacle_contacts=result.obstacle_contacts,
                         max_joint_gap=result.max_joint_gap, max_penetration=result.max_penetration,
                         newton_iterations=result.newton_iterations, qp_sweeps=result.qp_sweeps,
-                        radius=scene.model.radius[0], dt=scene.dt)
+                        qp_capped=result.qp_capped, radius=scene.model.radius[0], dt=scene.dt)
     files.append(npz)
     (folder / "vtk").mkdir()
     F, nn = result.polylines.shape[1:3]

@@ -27,13 +27,15 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    **Default** ``contact_coupling="coupled"``: the same per-contact normal rows and friction polygons
    solved by one projected (nonlinear) Gauss–Seidel over all contacts with relative velocities and
    equal and opposite impulses (Moreau–Jean NSCD), with the joints of every touched fibre in the same
-   sweeps: per joint the point-joint row and the joint's implicit bending/torsion spring over the
+   sweeps: per joint the point-joint row (the two anchors move together, J u⁺ = 0; the joints' position
+   drift is left to the next step's joint stage, ``joint_gap_fraction``) and the joint's implicit bending/torsion spring over the
    second half step (extra angular impulse Λ = (½Δt² K_w + Δt c)(ω_rel − ω_rel⁻), the same linearly
    implicit spring as the joint stage), all joints of one fibre solved together exactly in each sweep
    (block-tridiagonal, :mod:`headsim.solvers._kernels.chains_coupled`; fibres in parallel), then the
    contacts one by one; between full sweeps, partial sweeps visit only the contacts that carry an
    impulse or are near their bound (same fixed point), and the solve starts from half of the previous
-   step's impulses of the same contacts (``warm_start``). Without the spring rows the contact stage sees a floppy
+   step's impulses of the same contacts (``warm_start``) and stops on a measured residual
+   (``contact_tolerance``, capped at ``qp_iterations`` sweeps). Without the spring rows the contact stage sees a floppy
    ball-joint chain: an off-centre contact impulse bends it freely (≈ 10 rad/s per step on a stacked
    5-segment fibre), the next joint stage's stiff springs push back, and stacked multi-segment layers
    gained energy a hundredfold and sank through each other within 300 steps (measured; test
@@ -499,7 +501,20 @@ class ChainOptions:
     harmonisation_iterations : joints → contacts passes per step (1–3 in the seed).
     contact_sweeps : per-body projection passes (≥ 2: later passes use the partners' current velocity).
     joint_tolerance : m, Newton stop on the max joint gap of the trial state; max_newton : iterations.
-    qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s).
+    qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s) of the per-body
+        projection; ``qp_iterations`` is also the sweep cap of the coupled solve (see ``contact_tolerance``).
+    contact_tolerance : m/s, stopping rule of the coupled contact solve: it ends at the first full
+        Gauss–Seidel sweep in which no contact row changed its velocities by more than this (the largest
+        |Δλ| W_nn and friction change of any row, i.e. the fixed-point residual of the sweep as a velocity)
+        and no joint had a larger gap-rate residual, and no candidate became a row; at most
+        ``qp_iterations`` sweeps (the solves that end at that cap without meeting the tolerance are
+        counted in :attr:`StepStats.qp_capped`, the largest final residual is :attr:`StepStats.qp_residual`).
+        The residual of a sweep under-states the distance to the converged answer where the Gauss–Seidel
+        converges slowly (measured with ``benchmarks/bench_contact_convergence.py``: the largest velocity
+        error was 2.7 × the residual on the ringlet start and 14 × on the settled 40 × 30 strand), so the
+        default is 1e-5 m/s (≤ ≈ 1.5e-4 m/s velocity error, 0.15 µm per step at Δt = 1 ms, 0.4 % of a
+        70 µm fibre's radius). With 1e-4 m/s the 4-layer stack of the tests stopped after ≈ 100 sweeps
+        and sank 1.4 % of the radius in 1,000 steps (its test allows 1 %; 150 sweeps: 0.16 %).
     contact_band : detection band beyond contact as a fraction of the radius (fibre–fibre and default
         obstacles); speculative_speed : extra detection margin speed·Δt, m/s.
     penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step; the push-out is
@@ -515,6 +530,17 @@ class ChainOptions:
         impulses of the same contacts; the Gauss–Seidel fixed point is unchanged, only the starting point.
     parallel_threshold : segments from which the Numba-parallel kernels are used (serial below: the
         thread start-up costs more than it saves on small scenes).
+    joint_gap_fraction : γ ∈ [0, 1], the Baumgarte-style fraction of the mid-step joint gap d_mid that the
+        joint rows of the coupled contact solve close by the step's end: they demand
+        (v_k + ω_k × r_k) − (v_l + ω_l × r_l) = −γ d_mid/(½Δt). Default 0: the contact solve only keeps
+        every joint's two anchors moving together (Moreau's velocity-level bilateral constraint, J u⁺ = 0)
+        and the position drift is corrected separately by the next step's joint stage (Method I closes
+        every gap of the t_i state in its trial integration: "no cumulative error", §8.5.1), so the
+        correction never competes with the contacts and adds no kinetic energy. With γ = 0 the velocity
+        solve is always feasible (u = 0 meets every row: its contact bounds are −g/Δt ≤ 0 or 0). γ = 1
+        is the former behaviour (the gap closed within the contact solve), which on a resting strand asks
+        for closing speeds 2 d/Δt that the contact bounds (−g/Δt) forbid: the impulses then grow with
+        the sweeps instead of converging (``benchmarks/bench_contact_convergence.py``).
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -538,6 +564,8 @@ class ChainOptions:
     warm_start: bool = True
     parallel_threshold: int = 2000
     obstacle_midpoints: bool = True
+    joint_gap_fraction: float = 0.0
+    contact_tolerance: float = 1e-5
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -556,6 +584,10 @@ class ChainOptions:
             raise ParameterError("contact_coupling must be 'per-body' (seed) or 'coupled' (Gauss–Seidel over contacts)")
         if not isinstance(self.friction, FrictionLaw):
             raise ParameterError("friction must be a FrictionLaw")
+        if not self.contact_tolerance >= 0.0:
+            raise ParameterError(f"contact_tolerance must be ≥ 0 m/s, got {self.contact_tolerance}")
+        if not 0.0 <= self.joint_gap_fraction <= 1.0:
+            raise ParameterError(f"joint_gap_fraction must be in [0, 1], got {self.joint_gap_fraction}")
 
 
 @dataclass
@@ -573,6 +605,8 @@ class StepStats:
     obstacle_contacts: int = 0
     newton_iterations: int = 0
     qp_sweeps: int = 0
+    qp_capped: int = 0  # coupled mode: contact solves of the step that hit the sweep cap (qp_iterations)
+    qp_residual: float = 0.0  # coupled mode: largest final sweep residual of the step's solves, m/s
     harmonisation_iterations: int = 0
     contact_rows: int = 0  # coupled mode: rows of the last contact solve, from the start + added during it
     candidate_rows: int = 0  # coupled mode: candidate pairs not rows from the start
@@ -651,6 +685,8 @@ class ChainSolver:
         self._warm = None  # (sorted keys, λ, friction) of the last step's contact solution (warm start)
         self._impulses = None
         self._promoted = 0  # candidate rows the last coupled solve added
+        self._qp_capped = 0  # coupled solves of this step that hit the sweep cap
+        self._qp_residual = 0.0  # largest final sweep residual of this step's coupled solves, m/s
         self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up) of this harmonisation pass
 
@@ -914,7 +950,8 @@ class ChainSolver:
 
     def _joint_rows(self, model, rows, x_mid, R_mid, dt, u_minus=None):
         """Bilateral joint rows of every fibre with a contact: bodies k (−1: root anchor), l, levers, and the
-        target relative anchor velocity −d_mid/(½Δt) that closes the mid-step gap by the step's end."""
+        target relative anchor velocity −γ d_mid/(½Δt) (γ = ``joint_gap_fraction``; γ = 1 closes the
+        mid-step gap d_mid by the step's end, γ = 0 keeps the anchors moving together)."""
         fib = model.segment_fibre
         touched = np.zeros(model.n_fibres, bool)
         touched[fib[rows.body]] = True
@@ -931,7 +968,7 @@ class ChainSolver:
         rk = np.where(is_root[:, None], 0.0, h[kk, None] * d3[kk])
         pk = np.where(is_root[:, None], model.root_point[fib[seg]], x_mid[kk] + rk)
         d = pk - (x_mid[seg] + rl)
-        target = -d / (0.5 * dt)
+        target = (-float(self.options.joint_gap_fraction) / (0.5 * dt)) * d
         # implicit spring of every joint over the second half step (§8.5.3; the joint stage's L* grows by
         # Δt K_w Δθ_end + Δt c Δω_rel with Δθ_end = ½Δt Δω_rel): C = ½Δt² K_w + Δt c E
         Rk = np.where(is_root[:, None, None], model.root_frame[fib[seg]], R_mid[kk])
@@ -956,8 +993,12 @@ class ChainSolver:
             u = np.ascontiguousarray(u_minus.copy())
             if self._gathered is None or self._gathered[0] is not rows:  # once per detection
                 pr, n_rows = _kernel_rows(rows)
-                geo = tuple(np.ascontiguousarray(a[pr]) for a in (rows.body, rows.partner, rows.normal, rows.lever,
-                                                                   rows.partner_lever))
+                n = len(pr)
+                geo = (np.empty(n, np.int64), np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)),
+                       np.empty((n, 3)))
+                gather = KP.gather_rows_parallel if model.n_segments >= o.parallel_threshold else KP.gather_rows
+                gather(pr, *(np.ascontiguousarray(a) for a in (rows.body, rows.partner, rows.normal, rows.lever,
+                                                                rows.partner_lever)), *geo)
                 self._gathered = (rows, pr, n_rows, geo)
             _, pr, n_rows, geo = self._gathered
             tg, lam_p, fr_p = np.empty(len(pr)), np.empty(len(pr)), np.empty((len(pr), 2))
@@ -978,9 +1019,12 @@ class ChainSolver:
                 ps = self._pass_setup = (rows, pass_key, joints, mass, inertia, setup)
             _, _, joints, mass, inertia, setup = ps
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
-            sw, _, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
-                                   float(o.restitution), int(o.qp_iterations), float(o.qp_tolerance), lam_p, fr_p,
-                                   *joints, n_rows)
+            sw, change, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
+                                        float(o.restitution), int(o.qp_iterations), float(o.contact_tolerance), lam_p,
+                                        fr_p, *joints, n_rows)
+            if change > o.contact_tolerance:  # stopped by the sweep cap, not by the stopping rule
+                self._qp_capped += 1
+            self._qp_residual = max(self._qp_residual, float(change))
             fr = np.empty((len(lam), 2))
             KP.scatter_kernel_impulses(pr, lam_p, fr_p, lam, fr)
             sweeps_box[0] = max(sweeps_box[0], int(sw))
@@ -1018,6 +1062,8 @@ class ChainSolver:
         t_all = time.perf_counter()
         secs = {"joints": 0.0, "detection": 0.0, "contacts": 0.0, "integration": 0.0}
         S = model.n_segments
+        self._qp_capped = 0
+        self._qp_residual = 0.0
         half_step = K.half_step if S >= o.parallel_threshold else K.half_step_serial
         x, R, v, w = state.position, state.rotation, state.velocity, state.angular_velocity
         g = np.asarray(o.gravity, float)
@@ -1114,6 +1160,7 @@ class ChainSolver:
                                   "reduce dt")
         new = ChainState(x_new, R_new, v_new, w_new, state.time + dt)
         st = StepStats(time=new.time, seconds=secs, newton_iterations=newton, qp_sweeps=sweeps_max,
+                       qp_capped=self._qp_capped, qp_residual=self._qp_residual,
                        harmonisation_iterations=o.harmonisation_iterations)
         st.kinetic_energy = kinetic_energy(model, new)
         st.potential_energy = potential_energy(model, new, g)

@@ -9,7 +9,7 @@ the lever from the centre (eq. 8.7).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 @njit(cache=True)
@@ -227,3 +227,21 @@ def scatter_kernel_impulses(order, lam_k, fr_k, lam, fr):
         fr[r, 0] = fr_k[q, 0]
         fr[r, 1] = fr_k[q, 1]
 
+
+
+def _gather_rows_impl(order, body, partner, normal, lever, partner_lever, ob, op, on, ol, opl):
+    """ob[q] = body[order[q]] etc.: the geometry of the rows in the coupled kernel's order, the five arrays
+    in one pass (NumPy's fancy indexing of the ≈ 2 M rows of the reference scene took 0.42 s per step for
+    the five arrays, single-threaded)."""
+    for q in prange(order.shape[0]):
+        r = order[q]
+        ob[q] = body[r]
+        op[q] = partner[r]
+        for z in range(3):
+            on[q, z] = normal[r, z]
+            ol[q, z] = lever[r, z]
+            opl[q, z] = partner_lever[r, z]
+
+
+gather_rows = njit(cache=True)(_gather_rows_impl)
+gather_rows_parallel = njit(cache=True, parallel=True)(_gather_rows_impl)
