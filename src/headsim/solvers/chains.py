@@ -520,6 +520,13 @@ class ChainOptions:
     penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step; the push-out is
         applied to the positions only (split impulse: a second contact solve whose velocity is not kept),
         so it adds no kinetic energy (``split_recovery=False``: the push-out is kept as velocity).
+    recovery_keeps_joints : coupled mode, split push-out: end the push-out solve with one exact joint solve
+        of every touched chain, so the positions it moves satisfy every joint row J u = 0 even when the
+        Gauss–Seidel stops at its sweep cap (the sweeps end with the contacts). Without it the capped
+        push-out opened the joints (27.6 mm/s joint-rate residual, 17 µm joint gaps on the settled 40 × 30
+        drape strand) and the next joint stage closed them again, pushing the segments back into their
+        contacts; with it the joint gaps there are 2–4 µm (``benchmarks/bench_penetration.py``). The
+        remaining penetration of that strand (≈ 60 µm) is not from this: see that benchmark.
     fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
     contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
         constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
@@ -566,6 +573,7 @@ class ChainOptions:
     obstacle_midpoints: bool = True
     joint_gap_fraction: float = 0.0
     contact_tolerance: float = 1e-5
+    recovery_keeps_joints: bool = True
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -980,7 +988,7 @@ class ChainSolver:
                 np.ascontiguousarray(target), np.ascontiguousarray(C), np.ascontiguousarray(w0))
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
-                  x_mid=None, warm=None, pass_key=0):
+                  x_mid=None, warm=None, pass_key=0, joints_last=False):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
         ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
         Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
@@ -1021,7 +1029,7 @@ class ChainSolver:
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
             sw, change, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
                                         float(o.restitution), int(o.qp_iterations), float(o.contact_tolerance), lam_p,
-                                        fr_p, *joints, n_rows)
+                                        fr_p, *joints, n_rows, bool(joints_last))
             if change > o.contact_tolerance:  # stopped by the sweep cap, not by the stopping rule
                 self._qp_capped += 1
             self._qp_residual = max(self._qp_residual, float(change))
@@ -1126,7 +1134,8 @@ class ChainSolver:
                 # split impulse: the penetration push-out moves the positions but is not kept as velocity
                 # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
                 u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
-                                       R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm, pass_key=it)
+                                       R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm, pass_key=it,
+                                       joints_last=o.split_recovery and o.recovery_keeps_joints)
                 promoted += self._promoted
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
