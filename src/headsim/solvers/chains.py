@@ -86,7 +86,7 @@ stack test for the sag it leaves).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -527,6 +527,21 @@ class ChainOptions:
         drape strand) and the next joint stage closed them again, pushing the segments back into their
         contacts; with it the joint gaps there are 2–4 µm (``benchmarks/bench_penetration.py``). The
         remaining penetration of that strand (≈ 60 µm) is not from this: see that benchmark.
+    springs_in_first_half_step : default True: the first half step q^{i+½} = q^i + ½Δt u_J moves with the
+        joint stage's twists *including* the joint springs' (and dampers') impulses of the step. This is
+        the main cause of the drape strand's interpenetration (issue 10, ``benchmarks/bench_penetration.py``):
+        a strand held bent by its contacts (draped over the sphere, fibres pressed together) moves into
+        those contacts in the unconstrained first half step by ½Δt × the spring velocity (10–40 mm/s at the
+        deepest contacts of the 40 × 30 strand; −0.3 mm/s with the springs set to zero), which only the
+        split push-out undoes: 130 µm (3.7 r) into the sphere at t = 0.2 s, 55–60 µm at t = 1.5 s.
+        False (opt-in, **not yet validated**): the first half step moves with the twists of a second,
+        spring-free joint solve (the joints still close) and the spring impulses enter u⁻ only, where the
+        contact solve sees them, as Moreau's midpoint scheme applies forces (q^{i+½} = q^i + ½Δt u^i).
+        Measured: from the settled 40 × 30 state, 100 steps: sphere penetration 55.7 → 1.3 µm, rows deeper
+        than r 79 → 9 (the rest: root segments of converging fibres, ≈ 60 µm, unchanged); 7 × 30 strand,
+        300 steps from the start: max 232 → 82 µm, steps 150–300 max 153 → 42 µm (mean 78 → 10 µm). It
+        changes contact-free dynamics too: ``test_anchored_chain_keeps_its_root_and_loses_energy`` fails with
+        it (a transient single-step energy gain of 1.1e-11 J, 7 % of the energy exchanged, 1 % allowed).
     fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
     contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
         constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
@@ -574,6 +589,7 @@ class ChainOptions:
     joint_gap_fraction: float = 0.0
     contact_tolerance: float = 1e-5
     recovery_keeps_joints: bool = True
+    springs_in_first_half_step: bool = True
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -697,6 +713,7 @@ class ChainSolver:
         self._qp_residual = 0.0  # largest final sweep residual of this step's coupled solves, m/s
         self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up) of this harmonisation pass
+        self._unsprung = None  # (model, the model without joint springs and damping): first half step
 
     @staticmethod
     def _writable(a):
@@ -1092,7 +1109,18 @@ class ChainSolver:
             t1 = time.perf_counter()
             secs["joints"] += t1 - t0
             w_mid = np.empty_like(wJ)
-            half_step(x, R, vJ, wJ, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
+            if not o.springs_in_first_half_step:
+                # the first half step moves with the joint stage's twists without the spring (and damping)
+                # impulses: they enter u⁻ only, where the contact solve sees them (see the option's notes)
+                if self._unsprung is None or self._unsprung[0] is not model:
+                    self._unsprung = (model, replace(model, joint_stiffness=0.0 * model.joint_stiffness,
+                                                     joint_damping=0.0 * model.joint_damping))
+                vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra)
+                half_step(x, R, vJ0, wJ0, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
+                Lw = np.einsum("sac,sc,sbc,sb->sa", R, model.inertia, R, wJ)
+                w_mid = np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / model.inertia, R_mid, Lw)
+            else:
+                half_step(x, R, vJ, wJ, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
             u_minus = np.concatenate([vJ + dv_ext, w_mid], axis=1)
             t2 = time.perf_counter()
             secs["integration"] += t2 - t1
