@@ -53,6 +53,25 @@ alternating runs, before = commit dbd7b37 (its source tree, same benchmark scrip
   iterations 2.04 s (3 × 0.68 s, 11 ms per sweep), pair rows 0.28 s, joint-duplicate filter 0.18 s, pair
   sort 0.16 s, BVH query threads ≈ 0.23 s, set-ups 0.12 s. Detection was not changed here.
 
+Branch ``det`` (issue 10, detection only): the BVH pairs come unsorted and one fused Numba pass
+(``chains_pairs.detect_rows``) orders them by (a, b), drops the joint copies and writes the rows and keys,
+instead of the radix sort → joint-duplicate filter → ``pairs[keep]`` → row kernel chain. The rows are the
+same in the same order: states, energies, contact counts and every row of the last step bitwise identical
+(reference scene, 8 steps from the former start). Before = commit dd7805a, after = branch ``det``:
+
+* ``_detect`` alone, same process, same mid-step state (t = 6 ms, 4.32 M BVH pairs → 2.20 M rows; the
+  commit dd7805a ``_detect`` loaded from its source next to the new one), 3 alternating repeats, load
+  1.7: before 1.30 / 1.30 / 1.30 s, after 0.77 / 0.87 / 0.75 s (0.69–1.02 s with the serial kernel).
+  Kernels alone on that input (load 2.0–2.4): sort + filter + rows 0.93–1.43 s → 0.45–0.71 s.
+* Reference ``--fibres 355 --segments 100 --settle 3 --steps 3 --coupled-only --geometry former``,
+  alternating runs while a second job kept the 2 cores busy (load 3.6–4.0): before 7.28 / 4.26 s per step
+  (detection 1.64 / 1.33 s), after 7.28 / 3.77 s (detection 1.95 / 1.11 s): at that load the phase times
+  are noise; same stats (6,608 contacts, max penetration 6.754e-05 m, KE 5.7093e-05 J).
+* Left in detection (cProfile, t = 6 ms): fused pass ≈ 0.6 s (the gather of the 4.3 M pairs into
+  (a, b) order and the per-segment sorts ≈ 0.2 s, the duplicate and gap tests ≈ 0.2 s, writing 2.2 M
+  rows ≈ 0.2 s), BVH query threads ≈ 0.25–0.35 s, tree build 0.03–0.06 s. Half of the 4.3 M pairs are
+  dropped after the query (≈ 1.1 M joint copies, ≈ 1 M separating pairs of the persistence filter).
+
 What limits the speed (``bench_contact_convergence.py``): the 60 sweeps are far from converged (velocity
 correction 31 % off its converged value), so fewer sweeps would change the physics, and the shipped
 iteration needs ≈ 2,000 sweeps for 1e-5 m/s; the rest is proportional to the ≈ 3 M detected pairs that

@@ -355,12 +355,13 @@ class FibreBVH:
                                 self._m, self.nodes, f.segment_start, f.radius, f.segment_fibre,
                                 0 if self.split_rule == "leaves" else 1, first_only, counters)
 
-    def self_contact_pairs(self, mode: str = "all") -> tuple[np.ndarray, np.ndarray]:
+    def self_contact_pairs(self, mode: str = "all", *, sort: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Colliding segment pairs of the self-query (Alg. 3).
 
         Returns pairs (n, 2) int64 with pairs[:, 0] < pairs[:, 1], sorted, and params (n, 2) float64
         (closest-point parameters s on the first, t on the second segment). ``mode="first"``
-        stops at the first contact (at most one pair).
+        stops at the first contact (at most one pair). ``sort=False`` returns the same pairs in the
+        traversal's order (for a caller that orders them itself).
         """
         if mode not in ("all", "first"):
             raise ParameterError(f"mode must be 'all' or 'first', got {mode!r}")
@@ -382,7 +383,7 @@ class FibreBVH:
                 counters += c
             pairs = np.concatenate([r[0] for r in results]) if results else np.zeros((0, 2), np.int64)
             params = np.concatenate([r[1] for r in results]) if results else np.zeros((0, 2))
-        if mode == "all" and len(pairs):
+        if mode == "all" and sort and len(pairs):
             order = np.lexsort((pairs[:, 1], pairs[:, 0]))
             pairs, params = pairs[order], params[order]
         dt = time.perf_counter() - t0
@@ -550,8 +551,9 @@ class PackedFibreBVH(FibreBVH):
         b = self.nbox[inner, :6].astype(np.float64)
         return float((b[:, 3:] - b[:, :3]).sum())
 
-    def self_contact_pairs(self, mode: str = "all") -> tuple[np.ndarray, np.ndarray]:
-        """Colliding segment pairs (as :meth:`FibreBVH.self_contact_pairs`: sorted, a < b; params s, t)."""
+    def self_contact_pairs(self, mode: str = "all", *, sort: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Colliding segment pairs (as :meth:`FibreBVH.self_contact_pairs`: sorted unless ``sort=False``, a < b;
+        params s, t)."""
         if mode not in ("all", "first"):
             raise ParameterError(f"mode must be 'all' or 'first', got {mode!r}")
         t0 = time.perf_counter()
@@ -575,7 +577,7 @@ class PackedFibreBVH(FibreBVH):
                 counters += c
             pairs = np.concatenate([r[0] for r in results]) if results else np.zeros((0, 2), np.int64)
             params = np.concatenate([r[1] for r in results]) if results else np.zeros((0, 2))
-        if mode == "all" and len(pairs):
+        if mode == "all" and sort and len(pairs):
             pairs, params = P.sort_pairs(pairs, params, f.n_segments)
         dt = time.perf_counter() - t0
         self.stats = QueryStats.from_counters(counters, dt)

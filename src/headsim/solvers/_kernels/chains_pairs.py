@@ -245,3 +245,213 @@ def _gather_rows_impl(order, body, partner, normal, lever, partner_lever, ob, op
 
 gather_rows = njit(cache=True)(_gather_rows_impl)
 gather_rows_parallel = njit(cache=True, parallel=True)(_gather_rows_impl)
+
+
+# -- fused detection pass: sort + joint-duplicate filter + rows (ChainSolver._detect) ----------------------------
+
+@njit(cache=True, inline="always")
+def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
+                   closing_factor, mark_tight, smooth):
+    """Row of pair q exactly as :func:`fibre_pair_rows` computes it (same operations in the same order, so
+    bitwise the same values). Returns (keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2)."""
+    a = pairs[q, 0]
+    b = pairs[q, 1]
+    ta = (2.0 * params[q, 0] - 1.0) * half[a]
+    tb = (2.0 * params[q, 1] - 1.0) * half[b]
+    dv0 = x[a, 0] + ta * d3[a, 0] - x[b, 0] - tb * d3[b, 0]
+    dv1 = x[a, 1] + ta * d3[a, 1] - x[b, 1] - tb * d3[b, 1]
+    dv2 = x[a, 2] + ta * d3[a, 2] - x[b, 2] - tb * d3[b, 2]
+    dist = np.sqrt(dv0 * dv0 + dv1 * dv1 + dv2 * dv2)
+    ra = radius[a]
+    rb = radius[b]
+    gap = dist - ra - rb
+    band = 0.5 * band_fraction * (ra + rb) + margin
+    if not gap < band + 0.75 * (speed[a] + speed[b]) * dt:
+        return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    if dist > 1e-12:
+        n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
+    else:
+        c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
+        c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
+        c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
+        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        if cn > 1e-12:
+            n0, n1, n2 = c0 / cn, c1 / cn, c2 / cn
+        else:
+            n0, n1, n2 = 0.0, 1.0, 0.0
+    la0 = ta * d3[a, 0] - ra * n0
+    la1 = ta * d3[a, 1] - ra * n1
+    la2 = ta * d3[a, 2] - ra * n2
+    lb0 = tb * d3[b, 0] + rb * n0
+    lb1 = tb * d3[b, 1] + rb * n1
+    lb2 = tb * d3[b, 2] + rb * n2
+    tight = True
+    if have_u:
+        va0 = u[a, 0] + u[a, 4] * la2 - u[a, 5] * la1
+        va1 = u[a, 1] + u[a, 5] * la0 - u[a, 3] * la2
+        va2 = u[a, 2] + u[a, 3] * la1 - u[a, 4] * la0
+        vb0 = u[b, 0] + u[b, 4] * lb2 - u[b, 5] * lb1
+        vb1 = u[b, 1] + u[b, 5] * lb0 - u[b, 3] * lb2
+        vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
+        closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
+        if -closing > smooth:
+            return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        if closing < 0.0:
+            closing = 0.0
+        if mark_tight:
+            tight = gap < band + closing_factor * closing * dt
+    return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
+
+
+@njit(cache=True, inline="always")
+def _find_partner(sp, start, lo, hi_id):
+    """Position of pair (lo, hi_id) in the pairs sp (P, 2) sorted by (a, b), start the CSR over a; or −1."""
+    i0 = start[lo]
+    i1 = start[lo + 1]
+    while i0 < i1:
+        mid = (i0 + i1) >> 1
+        if sp[mid, 1] < hi_id:
+            i0 = mid + 1
+        else:
+            i1 = mid
+    return i0 if i0 < start[lo + 1] and sp[i0, 1] == hi_id else -1
+
+
+@njit(cache=True, inline="always")
+def _joint_duplicate(q, start, pairs, params, half_length, radius, fibre, is_root):
+    """The rule of :func:`joint_duplicate_contacts` for pair q of the pairs sorted by (a, b)."""
+    for side in range(2):
+        own = pairs[q, side]
+        other = pairs[q, 1 - side]
+        if is_root[own] or not (params[q, side] * 2 * half_length[own] <= radius[own]):
+            continue
+        prev = own - 1
+        if fibre[prev] != fibre[own]:
+            continue
+        lo = min(prev, other)
+        idx = _find_partner(pairs, start, lo, max(prev, other))
+        if idx < 0:
+            continue
+        ps = 0 if pairs[idx, 0] == prev else 1
+        if (1.0 - params[idx, ps]) * 2 * half_length[prev] <= radius[prev]:
+            return True
+    return False
+
+
+def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed, band_fraction, margin, dt, u,
+                      closing_factor, mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out,
+                      key_out):
+    """Contact rows of unsorted closest-point pairs (pairs (P, 2) with pairs[:, 0] < pairs[:, 1] and distinct
+    (a, b), params (P, 2)) in one fused pass, the same rows in the same order as
+    ``sort_pairs`` → :func:`joint_duplicate_contacts` → :func:`fibre_pair_rows`: the pairs are ordered by
+    (a, b) (a counting pass over a, then each a's partners by b: a stable sort, ≈ 120 per segment on the
+    reference scene, up to ≈ 1,300), the
+    joint copies dropped, and the rows of :func:`fibre_pair_rows` (plus key = a·S + b) written compactly
+    to the outputs (length ≥ P). Returns the number of rows, or −1 when a pair has a ≥ b (nothing written:
+    the caller takes the sorting path)."""
+    P = pairs.shape[0]
+    S = half.shape[0]
+    have_u = u.shape[0] > 0
+    start = np.zeros(S + 1, np.int64)
+    for q in range(P):
+        if pairs[q, 0] >= pairs[q, 1]:
+            return -1
+        start[pairs[q, 0] + 1] += 1
+    for z in range(S):
+        start[z + 1] += start[z]
+    fill = start[:-1].copy()
+    order = np.empty(P, np.int64)
+    for q in range(P):  # increasing q per bucket: with the stable sorts below, the radix sort's order
+        a = pairs[q, 0]
+        order[fill[a]] = q
+        fill[a] += 1
+    # the pairs gathered into that order once (the later passes then read them sequentially: through the
+    # permutation, the duplicate look-ups and the rows took 3x longer, measured)
+    sp = np.empty((P, 2), np.int64)
+    spar = np.empty((P, 2))
+    for i in prange(P):
+        q = order[i]
+        sp[i, 0] = pairs[q, 0]
+        sp[i, 1] = pairs[q, 1]
+        spar[i, 0] = params[q, 0]
+        spar[i, 1] = params[q, 1]
+    for z in prange(S):  # each first segment's partners by second segment (stable merge sort)
+        i0 = start[z]
+        i1 = start[z + 1]
+        done = True
+        for i in range(i0 + 1, i1):
+            if sp[i, 1] < sp[i - 1, 1]:
+                done = False
+                break
+        if done:
+            continue
+        if i1 - i0 <= 32:  # insertion sort (stable)
+            for i in range(i0 + 1, i1):
+                v = sp[i, 1]
+                p0 = spar[i, 0]
+                p1 = spar[i, 1]
+                j = i - 1
+                while j >= i0 and sp[j, 1] > v:
+                    sp[j + 1, 1] = sp[j, 1]
+                    spar[j + 1, 0] = spar[j, 0]
+                    spar[j + 1, 1] = spar[j, 1]
+                    j -= 1
+                sp[j + 1, 1] = v
+                spar[j + 1, 0] = p0
+                spar[j + 1, 1] = p1
+            continue
+        # fast segments have up to ≈ 1,300 partners on the reference scene
+        o = np.argsort(sp[i0:i1, 1], kind="mergesort")
+        tb = sp[i0:i1, 1].copy()
+        tp = spar[i0:i1].copy()
+        for i in range(i1 - i0):
+            sp[i0 + i, 1] = tb[o[i]]
+            spar[i0 + i, 0] = tp[o[i], 0]
+            spar[i0 + i, 1] = tp[o[i], 1]
+    # keep flags per sorted position, counted per chunk; then the rows written at the chunks' offsets
+    n_chunks = 64
+    step = (P + n_chunks - 1) // n_chunks
+    keep = np.empty(P, np.bool_)
+    counts = np.zeros(n_chunks + 1, np.int64)
+    for c in prange(n_chunks):
+        k = 0
+        for i in range(c * step, min(P, (c + 1) * step)):
+            ok = False
+            if not _joint_duplicate(i, start, sp, spar, half, radius, fibre, is_root):
+                ok = _pair_geometry(i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt,
+                                    u, have_u, closing_factor, mark_tight, smooth)[0]
+            keep[i] = ok
+            k += ok
+        counts[c + 1] = k
+    for c in range(n_chunks):
+        counts[c + 1] += counts[c]
+    for c in prange(n_chunks):
+        k = counts[c]
+        for i in range(c * step, min(P, (c + 1) * step)):
+            if not keep[i]:
+                continue
+            _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2 = _pair_geometry(
+                i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
+                mark_tight, smooth)
+            a = sp[i, 0]
+            b = sp[i, 1]
+            a_out[k] = a
+            b_out[k] = b
+            n_out[k, 0] = n0
+            n_out[k, 1] = n1
+            n_out[k, 2] = n2
+            la_out[k, 0] = la0
+            la_out[k, 1] = la1
+            la_out[k, 2] = la2
+            lb_out[k, 0] = lb0
+            lb_out[k, 1] = lb1
+            lb_out[k, 2] = lb2
+            gap_out[k] = gap
+            tight_out[k] = tight
+            key_out[k] = a * S + b
+            k += 1
+    return counts[n_chunks]
+
+
+detect_rows = njit(cache=True)(_detect_rows_impl)
+detect_rows_parallel = njit(cache=True, parallel=True)(_detect_rows_impl)
