@@ -72,6 +72,12 @@ same in the same order: states, energies, contact counts and every row of the la
   rows ≈ 0.2 s), BVH query threads ≈ 0.25–0.35 s, tree build 0.03–0.06 s. Half of the 4.3 M pairs are
   dropped after the query (≈ 1.1 M joint copies, ≈ 1 M separating pairs of the persistence filter).
 
+After the merges of the branches ``gs``, ``pen`` and ``det`` (commit c85af25 + README), unloaded (load 0.9–1.2,
+nothing else running), ``--fibres 355 --segments 100 --settle 3 --steps 3 --coupled-only --geometry
+former``: **3.55 s per step wall** (6.14 s CPU): detection 1.03 s, contacts 2.34 s, joints 0.08 s,
+integration 0.05 s; 6,604 active contacts, 60 sweeps in every solve (3 per step at the cap), max
+penetration 6.70e-05 m. Goal 0.2 s: ≈ 18× off.
+
 What limits the speed (``bench_contact_convergence.py``): the 60 sweeps are far from converged (velocity
 correction 31 % off its converged value), so fewer sweeps would change the physics, and the shipped
 iteration needs ≈ 2,000 sweeps for 1e-5 m/s; the rest is proportional to the ≈ 3 M detected pairs that
