@@ -527,3 +527,26 @@ def test_long_segment_rests_on_a_sphere_along_its_whole_axis(midpoints):
     # the step statistics see the interior penetration too (not only the end points)
     assert solver.last_stats.max_penetration == pytest.approx(_max_axis_penetration(model, state, field),
                                                               rel=0.05, abs=1e-3 * R_FIBRE)
+
+
+def test_fused_detection_pass_and_stepwise_fallback_build_the_same_rows(monkeypatch):
+    """The fused detection kernel (order + joint-duplicate filter + rows in one pass) and the stepwise
+    path it falls back to for unordered pair lists (sort, filter, fibre_pair_rows) share the row geometry:
+    30 steps of the crossed stack give bitwise the same states."""
+    from headsim.solvers._kernels import chains_pairs as KP
+
+    def run():
+        model, state = _capsule_stack(segments=5)
+        solver = ChainSolver(ChainOptions())
+        obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+        for _ in range(30):
+            state = solver.step(model, state, 1e-3, obstacles)
+        assert solver.last_stats.fibre_contacts > 0
+        return state
+
+    fused = run()
+    monkeypatch.setattr(KP, "detect_rows", lambda *a: -1)
+    monkeypatch.setattr(KP, "detect_rows_parallel", lambda *a: -1)
+    stepwise = run()
+    for name in ("position", "rotation", "velocity", "angular_velocity"):
+        assert np.array_equal(getattr(fused, name), getattr(stepwise, name)), name

@@ -12,6 +12,60 @@ import numpy as np
 from numba import njit, prange
 
 
+@njit(cache=True, inline="always")
+def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
+                   closing_factor, mark_tight, smooth):
+    """Row of pair q (the geometry and tests of :func:`fibre_pair_rows`, which the fused detection pass
+    shares). Returns (keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2)."""
+    a = pairs[q, 0]
+    b = pairs[q, 1]
+    ta = (2.0 * params[q, 0] - 1.0) * half[a]
+    tb = (2.0 * params[q, 1] - 1.0) * half[b]
+    dv0 = x[a, 0] + ta * d3[a, 0] - x[b, 0] - tb * d3[b, 0]
+    dv1 = x[a, 1] + ta * d3[a, 1] - x[b, 1] - tb * d3[b, 1]
+    dv2 = x[a, 2] + ta * d3[a, 2] - x[b, 2] - tb * d3[b, 2]
+    dist = np.sqrt(dv0 * dv0 + dv1 * dv1 + dv2 * dv2)
+    ra = radius[a]
+    rb = radius[b]
+    gap = dist - ra - rb
+    band = 0.5 * band_fraction * (ra + rb) + margin
+    if not gap < band + 0.75 * (speed[a] + speed[b]) * dt:
+        return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    if dist > 1e-12:
+        n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
+    else:
+        c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
+        c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
+        c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
+        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        if cn > 1e-12:
+            n0, n1, n2 = c0 / cn, c1 / cn, c2 / cn
+        else:
+            n0, n1, n2 = 0.0, 1.0, 0.0
+    la0 = ta * d3[a, 0] - ra * n0
+    la1 = ta * d3[a, 1] - ra * n1
+    la2 = ta * d3[a, 2] - ra * n2
+    lb0 = tb * d3[b, 0] + rb * n0
+    lb1 = tb * d3[b, 1] + rb * n1
+    lb2 = tb * d3[b, 2] + rb * n2
+    tight = True
+    if have_u:
+        va0 = u[a, 0] + u[a, 4] * la2 - u[a, 5] * la1
+        va1 = u[a, 1] + u[a, 5] * la0 - u[a, 3] * la2
+        va2 = u[a, 2] + u[a, 3] * la1 - u[a, 4] * la0
+        vb0 = u[b, 0] + u[b, 4] * lb2 - u[b, 5] * lb1
+        vb1 = u[b, 1] + u[b, 5] * lb0 - u[b, 3] * lb2
+        vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
+        closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
+        if -closing > smooth:
+            return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        if closing < 0.0:
+            closing = 0.0
+        if mark_tight:
+            tight = gap < band + closing_factor * closing * dt
+    return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
+
+
 @njit(cache=True)
 def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
                     mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
@@ -28,52 +82,13 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     k = 0
     have_u = u.shape[0] > 0
     for q in range(pairs.shape[0]):
+        keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2 = _pair_geometry(
+            q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
+            mark_tight, smooth)
+        if not keep:
+            continue
         a = pairs[q, 0]
         b = pairs[q, 1]
-        ta = (2.0 * params[q, 0] - 1.0) * half[a]
-        tb = (2.0 * params[q, 1] - 1.0) * half[b]
-        dv0 = x[a, 0] + ta * d3[a, 0] - x[b, 0] - tb * d3[b, 0]
-        dv1 = x[a, 1] + ta * d3[a, 1] - x[b, 1] - tb * d3[b, 1]
-        dv2 = x[a, 2] + ta * d3[a, 2] - x[b, 2] - tb * d3[b, 2]
-        dist = np.sqrt(dv0 * dv0 + dv1 * dv1 + dv2 * dv2)
-        ra = radius[a]
-        rb = radius[b]
-        gap = dist - ra - rb
-        band = 0.5 * band_fraction * (ra + rb) + margin
-        if not gap < band + 0.75 * (speed[a] + speed[b]) * dt:
-            continue
-        if dist > 1e-12:
-            n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
-        else:
-            c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
-            c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
-            c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
-            cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-            if cn > 1e-12:
-                n0, n1, n2 = c0 / cn, c1 / cn, c2 / cn
-            else:
-                n0, n1, n2 = 0.0, 1.0, 0.0
-        la0 = ta * d3[a, 0] - ra * n0
-        la1 = ta * d3[a, 1] - ra * n1
-        la2 = ta * d3[a, 2] - ra * n2
-        lb0 = tb * d3[b, 0] + rb * n0
-        lb1 = tb * d3[b, 1] + rb * n1
-        lb2 = tb * d3[b, 2] + rb * n2
-        tight = True
-        if have_u:
-            va0 = u[a, 0] + u[a, 4] * la2 - u[a, 5] * la1
-            va1 = u[a, 1] + u[a, 5] * la0 - u[a, 3] * la2
-            va2 = u[a, 2] + u[a, 3] * la1 - u[a, 4] * la0
-            vb0 = u[b, 0] + u[b, 4] * lb2 - u[b, 5] * lb1
-            vb1 = u[b, 1] + u[b, 5] * lb0 - u[b, 3] * lb2
-            vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
-            closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
-            if -closing > smooth:
-                continue
-            if closing < 0.0:
-                closing = 0.0
-            if mark_tight:
-                tight = gap < band + closing_factor * closing * dt
         a_out[k] = a
         b_out[k] = b
         n_out[k, 0] = n0
@@ -248,60 +263,6 @@ gather_rows_parallel = njit(cache=True, parallel=True)(_gather_rows_impl)
 
 
 # -- fused detection pass: sort + joint-duplicate filter + rows (ChainSolver._detect) ----------------------------
-
-@njit(cache=True, inline="always")
-def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
-                   closing_factor, mark_tight, smooth):
-    """Row of pair q exactly as :func:`fibre_pair_rows` computes it (same operations in the same order, so
-    bitwise the same values). Returns (keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2)."""
-    a = pairs[q, 0]
-    b = pairs[q, 1]
-    ta = (2.0 * params[q, 0] - 1.0) * half[a]
-    tb = (2.0 * params[q, 1] - 1.0) * half[b]
-    dv0 = x[a, 0] + ta * d3[a, 0] - x[b, 0] - tb * d3[b, 0]
-    dv1 = x[a, 1] + ta * d3[a, 1] - x[b, 1] - tb * d3[b, 1]
-    dv2 = x[a, 2] + ta * d3[a, 2] - x[b, 2] - tb * d3[b, 2]
-    dist = np.sqrt(dv0 * dv0 + dv1 * dv1 + dv2 * dv2)
-    ra = radius[a]
-    rb = radius[b]
-    gap = dist - ra - rb
-    band = 0.5 * band_fraction * (ra + rb) + margin
-    if not gap < band + 0.75 * (speed[a] + speed[b]) * dt:
-        return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    if dist > 1e-12:
-        n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
-    else:
-        c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
-        c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
-        c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
-        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        if cn > 1e-12:
-            n0, n1, n2 = c0 / cn, c1 / cn, c2 / cn
-        else:
-            n0, n1, n2 = 0.0, 1.0, 0.0
-    la0 = ta * d3[a, 0] - ra * n0
-    la1 = ta * d3[a, 1] - ra * n1
-    la2 = ta * d3[a, 2] - ra * n2
-    lb0 = tb * d3[b, 0] + rb * n0
-    lb1 = tb * d3[b, 1] + rb * n1
-    lb2 = tb * d3[b, 2] + rb * n2
-    tight = True
-    if have_u:
-        va0 = u[a, 0] + u[a, 4] * la2 - u[a, 5] * la1
-        va1 = u[a, 1] + u[a, 5] * la0 - u[a, 3] * la2
-        va2 = u[a, 2] + u[a, 3] * la1 - u[a, 4] * la0
-        vb0 = u[b, 0] + u[b, 4] * lb2 - u[b, 5] * lb1
-        vb1 = u[b, 1] + u[b, 5] * lb0 - u[b, 3] * lb2
-        vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
-        closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
-        if -closing > smooth:
-            return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        if closing < 0.0:
-            closing = 0.0
-        if mark_tight:
-            tight = gap < band + closing_factor * closing * dt
-    return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
-
 
 @njit(cache=True, inline="always")
 def _find_partner(sp, start, lo, hi_id):
