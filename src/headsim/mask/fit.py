@@ -142,6 +142,10 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   with edge-edge pairs too, fractions ~1 but the active set cycles and the solve does not converge);
   the earlier attempts (dhat continuation, force ramps, damping, planes warm start) in the issue 6
   notes. The default stays ``planes`` for speed, with the contact check's warning naming the barrier.
+  The two models disagree on the demo's leak answer: the barrier's leak estimate is 18.2 L/min at 15 N
+  and 47.1 L/min at 30 N (free pitch; the planes: 16 L/min at 30 N, "acceptable"), with ``rotate=False``
+  19.1 / 21.5 / 30.9 L/min at 10 / 15 / 30 N (channels at the cheeks beside the nose, x = +-23 mm): the
+  leak *rises* with the strap force in both pose models (noticed, not explained).
 - **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton with the exact Hessian where it
   gives descent, line search; contact planes refreshed in an outer loop), force-controlled from
   first contact; the Newton solves between contact updates are inexact while the planes still move
