@@ -111,7 +111,7 @@ def contact_consistency(problem, result) -> ContactConsistency:
     inside = cushion.contains(skin)
     dist = cushion.closest_points(skin).distance
     depth = np.where(inside, dist, 0.0)
-    if getattr(p.options, "contact", "planes") == "barrier":
+    if p.options.contact == "barrier":
         from headsim.solvers.barrier import BarrierContact
 
         tolerance = CONSISTENCY_EDGE_FRACTION * p.skin_edge

@@ -66,6 +66,25 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
     return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
 
 
+@njit(cache=True, inline="always")
+def _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, a_out, b_out, n_out, la_out, lb_out,
+               gap_out, tight_out):
+    """Store row k (the values of :func:`_pair_geometry`) in the row arrays."""
+    a_out[k] = a
+    b_out[k] = b
+    n_out[k, 0] = n0
+    n_out[k, 1] = n1
+    n_out[k, 2] = n2
+    la_out[k, 0] = la0
+    la_out[k, 1] = la1
+    la_out[k, 2] = la2
+    lb_out[k, 0] = lb0
+    lb_out[k, 1] = lb1
+    lb_out[k, 2] = lb2
+    gap_out[k] = gap
+    tight_out[k] = tight
+
+
 @njit(cache=True)
 def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
                     mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
@@ -87,21 +106,8 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
             mark_tight, smooth)
         if not keep:
             continue
-        a = pairs[q, 0]
-        b = pairs[q, 1]
-        a_out[k] = a
-        b_out[k] = b
-        n_out[k, 0] = n0
-        n_out[k, 1] = n1
-        n_out[k, 2] = n2
-        la_out[k, 0] = la0
-        la_out[k, 1] = la1
-        la_out[k, 2] = la2
-        lb_out[k, 0] = lb0
-        lb_out[k, 1] = lb1
-        lb_out[k, 2] = lb2
-        gap_out[k] = gap
-        tight_out[k] = tight
+        _write_row(k, pairs[q, 0], pairs[q, 1], tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
+                   a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out)
         k += 1
     return k
 
@@ -396,19 +402,8 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
                 mark_tight, smooth)
             a = sp[i, 0]
             b = sp[i, 1]
-            a_out[k] = a
-            b_out[k] = b
-            n_out[k, 0] = n0
-            n_out[k, 1] = n1
-            n_out[k, 2] = n2
-            la_out[k, 0] = la0
-            la_out[k, 1] = la1
-            la_out[k, 2] = la2
-            lb_out[k, 0] = lb0
-            lb_out[k, 1] = lb1
-            lb_out[k, 2] = lb2
-            gap_out[k] = gap
-            tight_out[k] = tight
+            _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
+                       a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out)
             key_out[k] = a * S + b
             k += 1
     return counts[n_chunks]
