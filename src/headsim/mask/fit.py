@@ -129,9 +129,15 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   Measured (``tests/mask/test_contact_check.py``): on the coarse problem at 15 N no loaded skin
   vertex lies farther than 0.1 x edge from the cushion and nothing interpenetrates (the planes fail
   both). Demo configuration (``python benchmarks/bench_mask.py --contact barrier --fits-only``,
-  2 cores, load 3-4 with other jobs): cold 15 N fit 39.8 s (141 Newton iterations; the planes: 2.4 s,
-  14), warm 14 N 3.2 s (12), search 10/20/30 N 71.5 s, all three leak; at 15 N area 13.2 cm2, peak
-  74 kPa, mean 13.2 kPa (planes: 10.1 cm2, peak 133 kPa; published FE face-respirator means ~10 kPa,
+  2 cores, load 2-4 with other jobs): cold 15 N fit 24.2 s (95 Newton iterations; the planes: 2.4 s,
+  14), warm 14 N 5.7 s (20), search 10/20/30 N 79.1 s, all three leak; at 15 N area 13.2 cm2, peak
+  74 kPa, mean 13.2 kPa. (Before the Newton solve waited with the exact Hessian until CCD let a full
+  step through, :attr:`headsim.solvers.newton.NewtonOptions.exact_after_full_step`: 39.8 s and 141
+  iterations at load 3-4; 126 iterations in a same-load comparison, single-threaded ipctk.) Where the
+  time goes (cProfile, cold 15 N): SuperLU 59 % (0.13 s per factorisation of the 10.3k free
+  unknowns; the cushion's ring of 4 mm tets is a cyclic chain of ~100-unknown cross-sections, 1.95 M
+  of the factor's 2.6 M entries; a METIS nested-dissection order gives the same fill, MKL Pardiso
+  factorises it in 0.08 s), CCD 15 %, projected FEM Hessians 7 % (planes: 10.1 cm2, peak 133 kPa; published FE face-respirator means ~10 kPa,
   measured 9-15 kPa). Why it is slow: from first contact the contact patch grows ring by ring and
   the skin slides mm over the curved cushion; each Newton step predicts motion through pairs that
   are not yet in the barrier layer (or over the bead's curvature), and CCD cuts it to 2-10 %
@@ -984,6 +990,7 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float, progress=No
 
     barrier = p.options.contact == "barrier"
     opts = QuasiStaticOptions(newton=NewtonOptions(relative_tolerance=1e-10, try_exact_hessian=EXACT,
+                                                   exact_after_full_step=barrier,
                                                    max_iterations=BARRIER_MAXIT if barrier else MAXIT),
                               max_contact_updates=max(p.options.max_contact_updates,
                                                       FRICTION_CONTACT_UPDATES if p.options.friction > 0 else 0),

@@ -72,6 +72,11 @@ class BarrierContact:
         component of these triangles never interact (no self-contact), pairs of different components do
     dhat : m, barrier activation distance (thickness of the contact layer)
     stiffness : kappa, Pa (the contact pressure scale, module doc)
+    threads : ipctk's thread count (a process-wide setting of the IPC Toolkit, set here). 1, the
+        default, makes a solve reproducible: ipctk's parallel broad phase and CCD reduce in a
+        scheduling-dependent order, and the mask fit's Newton path is sensitive to the last bits
+        (measured: the same cold 10 N fit took 78 and 81 iterations in two runs with 2 threads, 83 in
+        every run with 1; its time per iteration is within the run-to-run scatter). None leaves it.
 
     A :class:`headsim.solvers.contact.ContactTerm` for :func:`headsim.solvers.solve_quasi_static`:
     energy / gradient / hessian on (x, u) (the driver unknowns u carry nothing here),
@@ -79,8 +84,12 @@ class BarrierContact:
     magnitude over the vertex's area on its surface).
     """
 
-    def __init__(self, rest_positions: np.ndarray, triangles: np.ndarray, dhat: float, stiffness: float):
+    def __init__(self, rest_positions: np.ndarray, triangles: np.ndarray, dhat: float, stiffness: float,
+                 threads: int | None = 1):
         import ipctk
+
+        if threads is not None:
+            ipctk.set_num_threads(int(threads))
 
         x = np.asarray(rest_positions, dtype=np.float64)
         tri = np.asarray(triangles, dtype=np.int64)

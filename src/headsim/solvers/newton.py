@@ -62,6 +62,14 @@ class NewtonOptions:
         when that does not give a descent direction (direct solver only)
     max_step : largest change of any unknown per iteration (m), None for no limit; keeps a body that
         is not yet in contact (zero stiffness in a direction) from being thrown far away
+    exact_after_full_step : with ``try_exact_hessian`` and a ``step_limit`` (barrier contact), use
+        the projected Hessian while the step limit cuts the Newton step (the contact set is still
+        forming and the exact Hessian's negative curvature only sends the step into the next
+        collision), and try the exact Hessian only from the first iteration whose full step was
+        admissible (local quadratic convergence where the projection would make it linear).
+        Measured on the mask fit's barrier contact (demo configuration, cold fits at 10 / 15 / 20 N):
+        61 / 98 / 138 Newton iterations against 83 / 126 / 159 with the exact Hessian tried at every
+        iteration and 186 at 15 N with the projected one only (its local convergence is linear)
     """
 
     force_tolerance: float | None = None
@@ -75,6 +83,7 @@ class NewtonOptions:
     max_line_search: int = 40
     max_step: float | None = None
     try_exact_hessian: bool = False
+    exact_after_full_step: bool = False
     amg_rebuild_iterations: int = 40
     blas_threads: int | None = 1
 
@@ -433,6 +442,8 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
     cg0 = pre.iterations if pre is not None else 0
     setups0 = pre.setups if pre is not None else 0
     g2_prev = eta = None
+    # exact Hessians are tried from the start unless they wait for the step limit to let a full step through
+    exact_now = not (options.exact_after_full_step and step_limit is not None)
 
     def result(it):
         t = dict(timer.seconds)
@@ -448,7 +459,8 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
         if gnorm <= tol:
             return result(it)
         g2 = float(np.linalg.norm(g))
-        for project in ((False, True) if options.try_exact_hessian and method == "direct" else (True,)):
+        exact = options.try_exact_hessian and method == "direct" and exact_now
+        for project in ((False, True) if exact else (True,)):
             with timer("hessian"):
                 hfull = _call_hessian(hessian, z, project)
             with timer("free_block"):
@@ -485,7 +497,9 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
             with timer("step_limit"):
                 full = np.zeros_like(z)
                 full[idx] = step * dz
-                step *= float(step_limit(z, full))
+                fraction = float(step_limit(z, full))
+                step *= fraction
+                exact_now = exact_now or fraction >= 1.0
             if step <= 0.0:
                 raise ConvergenceError(f"{what}: no admissible step at iteration {it} (|g| = {gnorm:.3g} N)")
         gt = None
