@@ -148,10 +148,32 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   with edge-edge pairs too, fractions ~1 but the active set cycles and the solve does not converge);
   the earlier attempts (dhat continuation, force ramps, damping, planes warm start) in the issue 6
   notes. The default stays ``planes`` for speed, with the contact check's warning naming the barrier.
-  The two models disagree on the demo's leak answer: the barrier's leak estimate is 18.2 L/min at 15 N
-  and 47.1 L/min at 30 N (free pitch; the planes: 16 L/min at 30 N, "acceptable"), with ``rotate=False``
-  19.1 / 21.5 / 30.9 L/min at 10 / 15 / 30 N (channels at the cheeks beside the nose, x = +-23 mm): the
-  leak *rises* with the strap force in both pose models (noticed, not explained).
+  The two models disagree on the demo's leak answer (the planes: 16 L/min at 30 N, "acceptable"): with
+  the barrier the leak *rises* with the strap force in both pose models. Measured (fits in ascending
+  force, warm-started; channel positions lateral / up / along the approach from the airway centre):
+
+  =======  ====================================  ====================================
+  force N  free pitch: leak L/min, pitch,        ``rotate=False``: leak L/min, largest
+           largest channel's flow area, aperture  channel's flow area, aperture
+  =======  ====================================  ====================================
+  5        3.5, -1.6 deg, 2.3 mm2, 0.79 mm       15.5, 5.5 mm2, 0.77 mm
+  10       13.0, -3.7 deg, 5.7 mm2, 0.73 mm      19.1, 7.6 mm2, 0.85 mm
+  15       18.2, -5.6 deg, 7.3 mm2, 0.93 mm      21.5, 8.3 mm2, 0.80 mm
+  20       28.9, -7.2 deg, 11.2 mm2, 1.08 mm     25.8, 9.7 mm2, 1.06 mm
+  30       53.3, -9.3 deg, 19.4 mm2, 1.40 mm     30.9, 11.6 mm2, 1.11 mm
+  =======  ====================================  ====================================
+
+  Every channel is one of two at the mask's top corners beside the nasal bridge (lateral +-12 to 15 mm,
+  23-31 mm above the airway centre), orifice-limited (viscous bound 5-13x larger), and the flow grows
+  because the narrowest cross-section there widens with the force; the contact area grows too (free
+  pitch 12.0 -> 17.2 cm2) but not into those corners. With free pitch the top of the mask turns into
+  the face (the cushion at the corner advances 3.6 -> 14.0 mm rigidly from 5 to 30 N against 2.8 ->
+  9.5 mm at the airway centre) and the corners' channels move 8 mm deeper along the approach with
+  the cushion, which does not follow the steep skin between nose and eye; without pitch the same
+  corners open, less. So the rising leak is a nasal-bridge leak of this cushion on this face, a known
+  failure mode of nasal masks (over-tightening does not seal the bridge), not an artefact of the free
+  pitch; whether a forehead support (pitch held by the headgear) would close it is not modelled
+  beyond ``rotate=False``.
 - **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton with the exact Hessian where it
   gives descent, line search; contact planes refreshed in an outer loop), force-controlled from
   first contact; the Newton solves between contact updates are inexact while the planes still move
