@@ -170,9 +170,9 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   the face (the cushion at the corner advances 3.6 -> 14.0 mm rigidly from 5 to 30 N against 2.8 ->
   9.5 mm at the airway centre) and the corners' channels move 8 mm deeper along the approach with
   the cushion, which does not follow the steep skin between nose and eye; without pitch the same
-  corners open, less. So the rising leak is a nasal-bridge leak of this cushion on this face, a known
-  failure mode of nasal masks (over-tightening does not seal the bridge), not an artefact of the free
-  pitch; whether a forehead support (pitch held by the headgear) would close it is not modelled
+  corners open, less. So the rising leak is a nasal-bridge leak of this cushion on this face, not an
+  artefact of the free pitch (why the corner gap widens rather than closes under more force, e.g. the
+  cushion being pushed aside by the steep nasal wall, was not resolved); whether a forehead support (pitch held by the headgear) would close it is not modelled
   beyond ``rotate=False``.
 - **Solve**: :func:`headsim.solvers.solve_quasi_static` (Newton with the exact Hessian where it
   gives descent, line search; contact planes refreshed in an outer loop), force-controlled from
