@@ -137,7 +137,16 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   time goes (cProfile, cold 15 N): SuperLU 59 % (0.13 s per factorisation of the 10.3k free
   unknowns; the cushion's ring of 4 mm tets is a cyclic chain of ~100-unknown cross-sections, 1.95 M
   of the factor's 2.6 M entries; a METIS nested-dissection order gives the same fill, MKL Pardiso
-  factorises it in 0.08 s), CCD 15 %, projected FEM Hessians 7 % (planes: 10.1 cm2, peak 133 kPa; published FE face-respirator means ~10 kPa,
+  factorises it in 0.08 s), CCD 15 %, projected FEM Hessians 7 %. What cuts the steps (CCD per
+  candidate pair along each full Newton step, cold 10 N): in the first 40 iterations the full step
+  moves vertices 0.3-6 mm and 3,000-4,500 pairs would collide on it (60-200 by iteration 30); the
+  first to collide are point-triangle and edge-edge pairs of skin and cushion 50-350 um apart, i.e.
+  just *outside* the 50 um layer, so the Newton model cannot see them, and each step advances the
+  contact by about that distance (fractions 0.01-0.1 until iteration 10, 0.1-0.5 until 40; full
+  steps from 54 on). A kinematic start (the planes' mask pose, skin under the cushion pushed along
+  the approach axis to 0.1-0.6 mm in front of it) does not help: the skin's flat triangles are chords
+  of the rounded cushion bead and ~900-3,300 pairs still cross on the way there (CCD fraction 0.08;
+  104-119 iterations from it) (planes: 10.1 cm2, peak 133 kPa; published FE face-respirator means ~10 kPa,
   measured 9-15 kPa). Why it is slow: from first contact the contact patch grows ring by ring and
   the skin slides mm over the curved cushion; each Newton step predicts motion through pairs that
   are not yet in the barrier layer (or over the bead's curvature), and CCD cuts it to 2-10 %
