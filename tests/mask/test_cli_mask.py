@@ -84,6 +84,30 @@ def test_condensed_mode_fit_writes_the_report(tmp_path, capsys):
     assert "condensed" in (out / "report.html").read_text()
 
 
+def test_held_rotation_reaches_the_fit(tmp_path, capsys):
+    """``--rotation held`` (headgear with a forehead support): the mask only advances along the approach
+    axis, so the fit reports no pitch or yaw, the problem records the choice, and the strap force still
+    balances; the free default turns the mask (a non-zero pitch on this face)."""
+    runs = {}
+    for rotation in ("held", "free"):
+        out = tmp_path / rotation
+        code, _, err = _run(["mask", "fit", "--mode", "condensed", "--force", "8", "--crop", "6", "--mask-edge", "5",
+                             "--rotation", rotation, "--out", str(out)], capsys)
+        assert code in (0, None), err
+        runs[rotation] = json.loads((out / "result.json").read_text())
+    held, free = runs["held"], runs["free"]
+    assert held["problem"]["mask_rotation"] == "held" and held["fit"]["mask_rotation_deg"] is None
+    assert held["fit"]["force_balance_error"] < 1e-9
+    assert free["problem"]["mask_rotation"] == "free" and abs(free["fit"]["mask_rotation_deg"]["pitch"]) > 0.1
+
+
+def test_bad_rotation_gives_exit_2_and_no_output(tmp_path, capsys):
+    out = tmp_path / "fit"
+    code, _, err = _run(["mask", "fit", "--rotation", "tilted", "--out", str(out)], capsys)
+    assert code == 2 and "--rotation must be 'free' or 'held'" in err
+    assert not out.exists()
+
+
 def test_bad_mode_gives_exit_2_and_no_output(tmp_path, capsys):
     out = tmp_path / "fit"
     code, _, err = _run(["mask", "fit", "--mode", "linear", "--out", str(out)], capsys)

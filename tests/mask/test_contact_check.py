@@ -123,6 +123,8 @@ def test_cli_contact_option_reaches_the_fit_and_study_options():
 
     assert mask_cmd.CONTACT.default == FitOptions().contact == StudyOptions().contact == "planes"
     assert mask_cmd._options(1, 8.0, 980.0, 4.3, "auto", contact="barrier").contact == "barrier"
+    assert mask_cmd.ROTATION.default == "free" and FitOptions().rotate and StudyOptions().rotate
+    assert mask_cmd._options(1, 8.0, 980.0, 4.3, "auto", rotation="held").rotate is False
 
 
 def test_barrier_report_names_the_contact_model_and_its_clean_check(tmp_path):

@@ -111,6 +111,8 @@ def test_a_resumed_study_refuses_other_settings(faces, tmp_path):
     with pytest.raises(ParameterError, match="contact='planes'.*contact='barrier'"):
         run_study(faces, ["nasal-M"], out, options=StudyOptions(contact="barrier"), processes=False,
                   case_fn=fake_case)
+    with pytest.raises(ParameterError, match="rotate=True.*rotate=False"):
+        run_study(faces, ["nasal-M"], out, options=StudyOptions(rotate=False), processes=False, case_fn=fake_case)
     with pytest.raises(ParameterError, match="maximum"):
         run_study(faces, ["nasal-M"], out, options=StudyOptions(maximum=40.0), processes=False, case_fn=fake_case)
     # the same settings resume

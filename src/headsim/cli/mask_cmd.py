@@ -59,12 +59,13 @@ def _load_mask(spec: str, mask_units: str, rigid_plane: Optional[str], thickness
 
 
 def _options(layers: int, crop_mm: float, therapy_pa: float, threshold_kpa: float, placement: str,
-             friction: float = 0.0, leak_threshold: float = LARGE_LEAK_LPM, contact: str = "planes"):
+             friction: float = 0.0, leak_threshold: float = LARGE_LEAK_LPM, contact: str = "planes",
+             rotation: str = "free"):
     from headsim.mask.fit import FitOptions
 
     return FitOptions(tissue_layers=layers, crop_margin=crop_mm * 1e-3, therapy_pressure=therapy_pa,
                       pressure_threshold=threshold_kpa * 1e3, placement=placement, friction=friction,
-                      leak_threshold_lpm=leak_threshold, contact=contact)
+                      leak_threshold_lpm=leak_threshold, contact=contact, rotate=rotation == "free")
 
 
 FACE = typer.Option(None, "--face", help="face surface (.obj/.stl/.ply…); default: the bundled neutral face")
@@ -89,11 +90,17 @@ MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM co
                     "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
 CONTACT = typer.Option("planes", "--contact", help="nonlinear mode's contact: planes (lagged-plane penalty, fast; "
                        "known to put pressure where the surfaces no longer touch, see the contact check) or barrier "
-                       "(IPC barrier on the current surfaces: consistent, never interpenetrates; about 15x slower)")
+                       "(IPC barrier on the current surfaces: consistent, never interpenetrates; about 10x slower)")
+ROTATION = typer.Option("free", "--rotation", help="the mask's orientation: free (it pitches and yaws on its strap "
+                        "until the contact moments balance: a strap pulling at the airway centre) or held (headgear "
+                        "with a forehead support keeps it: the mask only advances along the approach axis)")
 
 
-def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes") -> str:
+def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes", rotation: str = "free") -> str:
     from headsim.errors import ParameterError
+
+    if rotation not in ("free", "held"):
+        raise ParameterError(f"--rotation must be 'free' or 'held', got {rotation!r}")
 
     if mode not in ("nonlinear", "condensed"):
         raise ParameterError(f"--mode must be 'nonlinear' or 'condensed', got {mode!r}")
@@ -121,14 +128,14 @@ def list_masks() -> None:
 
 
 def _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop, edge, therapy,
-             threshold, friction=0.0, leak_threshold=LARGE_LEAK_LPM, contact="planes"):
+             threshold, friction=0.0, leak_threshold=LARGE_LEAK_LPM, contact="planes", rotation="free"):
     from headsim.mask.fit import prepare_fit
 
     mesh = _load_face(face, units)
     m = _load_mask(mask, mask_units, rigid_plane, thickness, kind, edge)
     typer.echo(f"face {mesh.name}: {mesh.n_vertices} vertices; mask {m.name}")
     problem = prepare_fit(mesh, m, _options(layers, crop, therapy, threshold, placement, friction, leak_threshold,
-                                            contact))
+                                            contact, rotation))
     d = problem.describe()
     typer.echo(f"model: {d['model_vertices']} vertices, {d['model_tets']} tets "
                f"({d['cropped_skin_vertices']} skin vertices in the mask region)")
@@ -143,16 +150,16 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
         out: Path = typer.Option(..., "--out", help="output folder (report.html, result.json, PNG, VTU/PLY)"),
         layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, therapy_pressure: float = THERAPY,
         threshold: float = THRESH, mode: str = MODE, friction: float = FRICTION,
-        leak_threshold: float = LEAK, contact: str = CONTACT) -> None:
+        leak_threshold: float = LEAK, contact: str = CONTACT, rotation: str = ROTATION) -> None:
     """Press MASK onto FACE with strap force FORCE (N); write pressures, seal, leaks and the leak flow."""
     from headsim.cli._common import atomic_output_dir
     from headsim.mask.fit import check_force, problem_fit
     from headsim.mask.report import fit_contact_check, write_fit_report
 
     check_force(force)
-    _check_mode(mode, friction, contact)
+    _check_mode(mode, friction, contact, rotation)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
-                       mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact)
+                       mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact, rotation)
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     label = f"fit at {force:g} N ({mode}{', ' + contact + ' contact' if mode == 'nonlinear' else ''})"
@@ -242,14 +249,15 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
                out: Path = typer.Option(..., "--out", help="output folder"),
                layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE,
                therapy_pressure: float = THERAPY, threshold: float = THRESH, mode: str = MODE,
-               friction: float = FRICTION, leak_threshold: float = LEAK, contact: str = CONTACT) -> None:
+               friction: float = FRICTION, leak_threshold: float = LEAK, contact: str = CONTACT,
+               rotation: str = ROTATION) -> None:
     """Search the least strap force with which MASK seals on FACE (bracketing + bisection, warm-started)."""
     from headsim.mask.search import SearchOptions
 
     SearchOptions(start=start, maximum=maximum, abs_tol=tol)  # validate before the set-up work
-    _check_mode(mode, friction, contact)
+    _check_mode(mode, friction, contact, rotation)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
-                       mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact)
+                       mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact, rotation)
     run_seal_force(problem, out, start, maximum, tol, mode)
 
 
@@ -265,13 +273,13 @@ def study(faces: Path = typer.Option(..., "--faces", help="folder of face meshes
           maximum: float = typer.Option(60.0, "--max-force", help="largest force tried, N"),
           tol: float = typer.Option(1.0, "--tol", help="force tolerance, N"),
           layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE, mode: str = MODE,
-          friction: float = FRICTION, contact: str = CONTACT) -> None:
+          friction: float = FRICTION, contact: str = CONTACT, rotation: str = ROTATION) -> None:
     """Least seal force of every face x mask on Dask; resumable (finished cases kept in OUT/cases.sqlite)."""
     from headsim.mask.study import StudyOptions, run_study
 
     opts = StudyOptions(units=units, start=start, maximum=maximum, abs_tol=tol, tissue_layers=layers,
-                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode, friction, contact), friction=friction,
-                        contact=contact)
+                        crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode, friction, contact, rotation), friction=friction,
+                        contact=contact, rotate=rotation == "free")
     summary = run_study(faces, [m.strip() for m in masks.split(",") if m.strip()], out, options=opts,
                         scheduler=scheduler, n_workers=workers, progress=True)
     typer.echo(f"{summary['n_cases']} cases ({summary['n_computed']} computed now, {summary['n_reused']} from the "

@@ -40,6 +40,7 @@ class StudyOptions:
     mode : "nonlinear" or "condensed" (:func:`headsim.mask.search.least_seal_force`);
     friction : skin-cushion Coulomb coefficient of the nonlinear fit (FitOptions.friction);
     contact : "planes" or "barrier", the nonlinear fit's contact model (FitOptions.contact)
+    rotate : the mask pitches and yaws on its strap (True) or keeps its orientation (FitOptions.rotate)
     """
 
     units: str = "m"
@@ -54,6 +55,7 @@ class StudyOptions:
     mode: str = "nonlinear"
     friction: float = 0.0  # frictionless, as FitOptions
     contact: str = "planes"
+    rotate: bool = True
 
 
 _SCHEMA = """CREATE TABLE IF NOT EXISTS cases (
@@ -140,7 +142,7 @@ def run_case(face_file: str, mask_name: str, options: dict) -> dict:
         face = load_surface(face_file, units=o.units)
         problem = prepare_fit(face, make_mask(mask_name, edge_length=o.mask_edge),
                               FitOptions(tissue_layers=o.tissue_layers, crop_margin=o.crop_margin,
-                                         friction=o.friction, contact=o.contact))
+                                         friction=o.friction, contact=o.contact, rotate=o.rotate))
         res = least_seal_force(problem, SearchOptions(start=o.start, maximum=o.maximum, abs_tol=o.abs_tol,
                                                       rel_tol=o.rel_tol, max_solves=o.max_solves),
                                mode=o.mode)
