@@ -58,6 +58,23 @@ def test_report_files(report_dir):
     assert "leak flow at the therapy pressure" in html and "leak channels" in html
 
 
+def test_report_states_an_acceptable_leak_window(tmp_path):
+    """A search whose leak is acceptable only between two forces (the barrier's leak rises with the strap
+    force) reports both ends, in the table and in result.json."""
+    from dataclasses import replace
+
+    p = coarse_problem()
+    fit = coarse_fit(8.0)
+    search = replace(_search_like([fit]), leak_force=8.0, leak_lower_bound=None, leak_status="window",
+                     leak_fit=fit, leak_upper_force=13.75, leak_upper_bound=14.5)
+    write_fit_report(tmp_path, p, fit, search)
+    html = (tmp_path / "report.html").read_text()
+    assert "13.75 N: too much leak again from 14.50 N" in html
+    data = json.loads((tmp_path / "result.json").read_text())["search"]
+    assert data["acceptable_leak_up_to_n"] == 13.75 and data["unacceptable_leak_again_from_n"] == 14.5
+    assert data["leak_search_status"] == "window"
+
+
 def _chromium():
     for name in ("chromium", "chromium-browser", "google-chrome"):
         path = shutil.which(name)

@@ -164,15 +164,46 @@ def test_real_search_is_consistent():
     assert set(forces) >= {8.0}
 
 
-def test_non_monotone_leak_is_reported_as_such(monkeypatch):
-    """Acceptable between 5 and 20 N only (a mask that pitches open at high force): the answer is the
-    smallest acceptable solved force, flagged "non-monotone"; an acceptable fit followed by an
-    unacceptable larger one never counts as 'acceptable from here on'."""
+@pytest.mark.parametrize("low, high", [(5.0, 20.0), (0.5, 13.3)])
+def test_leak_window_is_bracketed_at_both_ends(monkeypatch, low, high):
+    """Acceptable between ``low`` and ``high`` only (too loose below, too tight above: the barrier's leak
+    rises with the force): the answer is that window, each end within the search tolerance (the lower
+    end at the minimum when the leak is acceptable there), and the fits above ``high`` never count as
+    "acceptable from here on"."""
+    calls = []
+
+    def fake(problem, force, warm_start=None):
+        calls.append(force)
+        r = _FakeFit(force, 1e9)
+        r.leak_acceptable = low <= force <= high
+        return r
+
+    monkeypatch.setattr(search_mod, "problem_fit", fake)
+    opts = SearchOptions(start=10.0, maximum=60.0, abs_tol=0.25, rel_tol=0.0, max_solves=30)
+    res = least_seal_force(None, opts)
+    assert res.status == "no-seal" and res.leak_status == "window"
+    if low <= opts.minimum:
+        assert res.leak_force == opts.minimum and res.leak_lower_bound is None
+    else:
+        assert res.leak_lower_bound < low <= res.leak_force <= low + 0.25
+    assert res.leak_upper_force <= high < res.leak_upper_bound <= res.leak_upper_force + 0.25
+    assert res.leak_fit.leak_acceptable and res.n_solves == len(calls)
+    d = res.as_dict()
+    assert (d["acceptable_leak_up_to_n"], d["unacceptable_leak_again_from_n"]) == (res.leak_upper_force,
+                                                                                    res.leak_upper_bound)
+
+
+def test_leak_window_stops_at_the_fit_budget(monkeypatch):
+    """When the leak answer's fits run out (4 here, as many as the strict search's: 10, 20, 40, 60 N) the
+    window is the bracket reached, flagged: the lower end took them all (5, 2.5, 3.75, 4.375 N), the
+    top is the solved forces' one (acceptable at 20, too much at 40 N), unrefined."""
     def fake(problem, force, warm_start=None):
         r = _FakeFit(force, 1e9)
         r.leak_acceptable = 5.0 <= force <= 20.0
         return r
 
     monkeypatch.setattr(search_mod, "problem_fit", fake)
-    res = least_seal_force(None, SearchOptions(start=10.0, maximum=60.0))
-    assert res.leak_status == "non-monotone" and res.leak_force == 10.0 and res.leak_solves == 0
+    res = least_seal_force(None, SearchOptions(start=10.0, maximum=60.0, max_solves=4))
+    assert res.leak_status == "max-solves" and res.leak_solves == 4
+    assert (res.leak_lower_bound, res.leak_force) == (4.375, 5.0)
+    assert res.leak_upper_force == 20.0 and res.leak_upper_bound == 40.0

@@ -96,10 +96,12 @@ def test_a_store_from_before_the_leak_column_is_upgraded(tmp_path):
             n_solves INTEGER, seconds REAL, error TEXT, result_json TEXT, finished_at REAL, PRIMARY KEY (face, mask))""")
         db.execute("INSERT INTO cases (face, mask, status) VALUES ('f', 'nasal-S', 'no-seal')")
     store = CaseStore(path)
-    store.put({"face": "f", "mask": "nasal-M", "status": "sealed", "least_acceptable_leak_force_n": 7.5})
+    store.put({"face": "f", "mask": "nasal-M", "status": "sealed", "least_acceptable_leak_force_n": 7.5,
+               "acceptable_leak_up_to_n": 17.5})
     rows = {r["mask"]: r for r in store.rows()}
     store.close()
     assert rows["nasal-M"]["least_acceptable_leak_force_n"] == 7.5
+    assert rows["nasal-M"]["acceptable_leak_up_to_n"] == 17.5  # the window's top (search module doc)
     assert rows["nasal-S"]["least_acceptable_leak_force_n"] is None and rows["nasal-S"]["status"] == "no-seal"
 
 

@@ -235,6 +235,10 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
         typer.echo(f"least force with an acceptable leak (<= {thr:g} L/min, estimate): {result.leak_force:.2f} N "
                    f"(largest with more leak: {lo}; leak at {result.leak_force:.2f} N: {result.leak_fit.leak_flow_lpm:.2f} L/min; "
                    f"{result.leak_solves} extra fits) -> {out}/report.html")
+        if result.leak_upper_force is not None:
+            typer.echo(f"  ... but only up to {result.leak_upper_force:.2f} N: too much leak again from "
+                       f"{result.leak_upper_bound:.2f} N (the leak rises with the strap force; status "
+                       f"{result.leak_status})")
     _echo_check(check, result.fit.force)
     return result
 

@@ -101,6 +101,11 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
             rows.append((f"least force with leak <= {thr:g} L/min",
                          f"{search.leak_force:.2f} N (largest with more leak: {lo}; leak at that force "
                          f"{search.leak_fit.leak_flow_lpm:.2f} L/min; {search.leak_solves} extra fit(s))"))
+            if search.leak_upper_force is not None:
+                rows.append((f"leak <= {thr:g} L/min up to",
+                             f"{search.leak_upper_force:.2f} N: too much leak again from "
+                             f"{search.leak_upper_bound:.2f} N (the leak rises with the strap force; status "
+                             f"{search.leak_status})"))
         rows.append(("fits in the search", f"{search.n_solves} ({search.seconds:.1f} s)"))
     rows += [
         ("strap force", f"{fit.force:.2f} N"),
@@ -216,6 +221,8 @@ def curves_figure(search: SearchResult):
             fig.add_vline(x=search.seal_force, line_dash="dash", line_color="green", row=1, col=col)
     if search.leak_force is not None:
         fig.add_vline(x=search.leak_force, line_dash="dot", line_color="orange", row=1, col=3)
+    if search.leak_upper_force is not None:
+        fig.add_vline(x=search.leak_upper_force, line_dash="dot", line_color="orange", row=1, col=3)
     fig.update_xaxes(title_text="strap force (N)")
     fig.update_yaxes(title_text="cm²", row=1, col=1)
     fig.update_yaxes(title_text="kPa", row=1, col=2)

@@ -23,11 +23,21 @@ carries a leak-flow estimate (:mod:`headsim.mask.leak`) and the judgement "leak 
 (:attr:`FitResult.leak_acceptable`), assumed monotone in the force like the seal. After the strict
 search, the solved forces are reused: the smallest acceptable one and the largest unacceptable
 one below it form the bracket -- the smallest force from which every solved force is acceptable,
-so an isolated acceptable fit below an unacceptable one does not count (the leak is not always
-monotone: the mask pitches on its strap) -- halving down from it, to ``minimum``, when no solved
-force below it is unacceptable, bisected to the same tolerance, with at most ``max_solves``
-further fits. When the largest solved force is unacceptable but a smaller one is not, the answer
-is that smaller force, unrefined, with status "non-monotone".
+so an isolated acceptable fit below an unacceptable one does not count -- halving down from it, to
+``minimum``, when no solved force below it is unacceptable, bisected to the same tolerance, with at
+most ``max_solves`` further fits.
+
+**Acceptable-leak window** (status "window"): the leak is not always monotone in the force. With
+the consistent barrier contact the demo's leak *rises* with the force (:mod:`headsim.mask.fit`,
+"Barrier contact": 3.5 L/min at 5 N, 53 L/min at 30 N, through the corners beside the nasal
+bridge), so the strap can be too loose *and* too tight. When the largest solved force is
+unacceptable but a smaller one is not, the answer is the window of the lowest run of acceptable
+solved forces: its lower end refined as above (bisected against the unacceptable force below it,
+or halved down to ``minimum``), its upper end bisected against the first unacceptable force above
+it, both to the same tolerance and within the same ``max_solves`` further fits
+(``leak_force`` .. ``leak_upper_force``; ``leak_upper_bound`` the least force found above the
+window with too much leak). Where the fit budget runs out the status says so and the window is
+the bracket reached.
 A sealed fit leaks 0, so the answer is at most the strict seal force. When no solved force is
 acceptable the answer is None ("leak above the threshold up to the largest force solved"); no fit
 above the strict search's range is tried. Cost on the demo (nonlinear, 10-30 N, 1 N): see
@@ -109,11 +119,16 @@ class SearchResult:
     failures : messages of the fits that did not converge
     leak_force : N, the least force whose leak is acceptable (module doc), or None
     leak_lower_bound : N, the largest force found with an unacceptable leak (None if none below)
-    leak_status : "acceptable", "acceptable-at-minimum", "not-acceptable", "non-monotone" (acceptable at
-        some solved force but not at the largest: leak_force is the smallest acceptable one, unrefined),
-        "max-solves", "solve-failed"
+    leak_status : "acceptable", "acceptable-at-minimum", "not-acceptable", "window" (acceptable at some
+        solved force but not at the largest: acceptable from leak_force up to leak_upper_force, module
+        doc), "max-solves", "solve-failed"
     leak_solves : fits added for the leak answer (beyond the strict search's)
     leak_fit : FitResult at ``leak_force`` (None when there is none)
+    leak_upper_force : N, the largest force found with an acceptable leak when the leak turns
+        unacceptable again above it (the window's top; None when the leak stays acceptable up to the
+        largest force solved)
+    leak_upper_bound : N, the least force found above ``leak_upper_force`` with too much leak (None
+        when there is no window)
     """
 
     seal_force: float | None
@@ -131,6 +146,8 @@ class SearchResult:
     leak_status: str | None = None
     leak_solves: int = 0
     leak_fit: FitResult | None = None
+    leak_upper_force: float | None = None
+    leak_upper_bound: float | None = None
 
     def as_dict(self) -> dict:
         leak = getattr(self.fit, "leak", None)
@@ -138,6 +155,8 @@ class SearchResult:
             "least_seal_force_n": self.seal_force,
             "least_acceptable_leak_force_n": self.leak_force,
             "largest_unacceptable_leak_force_n": self.leak_lower_bound,
+            "acceptable_leak_up_to_n": self.leak_upper_force,
+            "unacceptable_leak_again_from_n": self.leak_upper_bound,
             "leak_search_status": self.leak_status,
             "leak_extra_solves": self.leak_solves,
             "leak_threshold_lpm": None if leak is None else leak.threshold_lpm,
@@ -244,7 +263,7 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
         lo, hi, stop = _bisect(solve, lambda r: r.sealed, lo, hi, options, lambda: len(fits) < options.max_solves)
         status = stop or status
     n_strict = len(fits) + len(failed)
-    leak_hi, leak_lo, leak_status = _leak_bracket(
+    leak_hi, leak_lo, leak_status, leak_top, leak_over = _leak_bracket(
         solve, fits, options, lambda: len(fits) + len(failed) - n_strict < options.max_solves)
     curve = [CurvePoint(f, r.summary.contact_area_cm2, r.summary.peak_pressure / 1e3,
                         r.summary.mean_pressure / 1e3, r.summary.area_above_threshold_cm2, r.sealed, r.seconds,
@@ -252,7 +271,8 @@ def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions
              for f, r in sorted(fits.items())]
     n = len(fits) + len(failed)
     leak = dict(leak_force=leak_hi, leak_lower_bound=leak_lo, leak_status=leak_status, leak_solves=n - n_strict,
-                leak_fit=None if leak_hi is None else fits[leak_hi])
+                leak_fit=None if leak_hi is None else fits[leak_hi], leak_upper_force=leak_top,
+                leak_upper_bound=leak_over)
     if hi is None:
         best = fits[max(fits)]
         return SearchResult(None, lo, None, best, curve, n, time.perf_counter() - t0,
@@ -296,28 +316,39 @@ def _bisect(solve, accept, lo: float, hi: float, options: SearchOptions, budget_
 
 
 def _leak_bracket(solve, fits: dict, options: SearchOptions, budget_left):
-    """Least force with an acceptable leak from the solved ``fits``, refined (module doc):
-    (force or None, largest unacceptable force below it or None, status)."""
+    """Least force with an acceptable leak from the solved ``fits``, refined (module doc): (force or
+    None, largest unacceptable force below it or None, status, the window's top or None, the least
+    unacceptable force above the window or None)."""
     def accept(r):
         return bool(r.leak_acceptable)
 
     forces = sorted(fits)
     ok = [accept(fits[f]) for f in forces]
     if not any(ok):
-        return None, forces[-1], "not-acceptable"
-    if not ok[-1]:
-        # acceptable somewhere but not at the largest force solved: the leak is not monotone here
-        i = ok.index(True)
-        return forces[i], forces[i - 1] if i else None, "non-monotone"
-    # the smallest force from which every solved force is acceptable
-    k = len(ok) - 1
-    while k > 0 and ok[k - 1]:
-        k -= 1
+        return None, forces[-1], "not-acceptable", None, None
+    top = over = None
+    if ok[-1]:
+        # the smallest force from which every solved force is acceptable
+        k = len(ok) - 1
+        while k > 0 and ok[k - 1]:
+            k -= 1
+    else:
+        # acceptable somewhere but not at the largest force solved: the window of the lowest acceptable run
+        k = ok.index(True)
+        j = k
+        while ok[j + 1]:
+            j += 1
+        top, over = forces[j], forces[j + 1]
     hi = forces[k]
     lo = forces[k - 1] if k else None
+    stop = None
     if lo is None:
         lo, hi, stop = _halve_down(solve, accept, hi, options, budget_left)
-        if lo is None:
-            return hi, None, {"at-minimum": "acceptable-at-minimum"}.get(stop, stop)
-    lo, hi, stop = _bisect(solve, accept, lo, hi, options, budget_left)
-    return hi, lo, stop or "acceptable"
+        stop = {"at-minimum": "acceptable-at-minimum"}.get(stop, stop)
+    if lo is not None:
+        lo, hi, stop = _bisect(solve, accept, lo, hi, options, budget_left)
+    if top is not None and stop in (None, "acceptable-at-minimum"):
+        # the window's top: [top acceptable, over unacceptable], bisected with "too much leak" as the accepted side
+        top, over, up_stop = _bisect(solve, lambda r: not accept(r), top, over, options, budget_left)
+        stop = up_stop or "window"
+    return hi, lo, stop or "acceptable", top, over

@@ -8,7 +8,9 @@ interrupted or crashes keeps every finished case and, run again with the same ou
 computes only the missing ones. At the end ``OUT/ranking.csv`` and ``OUT/ranking.html`` rank the
 masks per face: sealing masks first, by least sealing force, then the others (written atomically);
 beside the strict answer each row has the least force whose leak-flow estimate is acceptable
-(:mod:`headsim.mask.leak`; ``least_acceptable_leak_force_n``).
+(:mod:`headsim.mask.leak`; ``least_acceptable_leak_force_n``) and, where the leak turns
+unacceptable again at higher force, the top of that window (``acceptable_leak_up_to_n``,
+:mod:`headsim.mask.search`).
 """
 
 from __future__ import annotations
@@ -62,10 +64,10 @@ _SCHEMA = """CREATE TABLE IF NOT EXISTS cases (
     face TEXT NOT NULL, mask TEXT NOT NULL, status TEXT NOT NULL, sealed INTEGER,
     least_seal_force_n REAL, peak_pressure_kpa REAL, mean_pressure_kpa REAL, contact_area_cm2 REAL,
     n_solves INTEGER, seconds REAL, error TEXT, result_json TEXT, finished_at REAL,
-    least_acceptable_leak_force_n REAL,
+    least_acceptable_leak_force_n REAL, acceptable_leak_up_to_n REAL,
     PRIMARY KEY (face, mask))"""
 #: columns added after the first schema: (name, SQL type), added to an older store when it is opened
-_ADDED_COLUMNS = (("least_acceptable_leak_force_n", "REAL"),)
+_ADDED_COLUMNS = (("least_acceptable_leak_force_n", "REAL"), ("acceptable_leak_up_to_n", "REAL"))
 #: the study settings the stored cases were computed with (StudyOptions field -> JSON value)
 _SETTINGS_SCHEMA = "CREATE TABLE IF NOT EXISTS settings (key TEXT PRIMARY KEY, value TEXT NOT NULL)"
 
@@ -109,7 +111,8 @@ class CaseStore:
 
     def put(self, row: dict) -> None:
         cols = ("face", "mask", "status", "sealed", "least_seal_force_n", "peak_pressure_kpa", "mean_pressure_kpa",
-                "contact_area_cm2", "n_solves", "seconds", "error", "result_json", "least_acceptable_leak_force_n")
+                "contact_area_cm2", "n_solves", "seconds", "error", "result_json", "least_acceptable_leak_force_n",
+                "acceptable_leak_up_to_n")
         vals = [row.get(c) for c in cols] + [time.time()]
         self._db.execute(f"INSERT OR REPLACE INTO cases ({', '.join(cols)}, finished_at) VALUES "
                          f"({', '.join('?' * (len(cols) + 1))})", vals)
@@ -151,7 +154,7 @@ def run_case(face_file: str, mask_name: str, options: dict) -> dict:
         return row
     s = res.fit.summary
     row.update(status=res.status, sealed=int(res.seal_force is not None), least_seal_force_n=res.seal_force,
-               least_acceptable_leak_force_n=res.leak_force,
+               least_acceptable_leak_force_n=res.leak_force, acceptable_leak_up_to_n=res.leak_upper_force,
                peak_pressure_kpa=s.peak_pressure / 1e3, mean_pressure_kpa=s.mean_pressure / 1e3,
                contact_area_cm2=s.contact_area_cm2, n_solves=res.n_solves, seconds=time.perf_counter() - t0,
                result_json=json.dumps({"search": res.as_dict(), "fit": res.fit.as_dict()}, default=float))
@@ -171,7 +174,7 @@ def _atomic_write(path: Path, text: str) -> None:
 
 
 RANK_COLUMNS = ("face", "rank", "mask", "sealed", "least_seal_force_n", "least_acceptable_leak_force_n",
-                "peak_pressure_kpa", "mean_pressure_kpa",
+                "acceptable_leak_up_to_n", "peak_pressure_kpa", "mean_pressure_kpa",
                 "contact_area_cm2", "n_solves", "status", "error")
 
 
