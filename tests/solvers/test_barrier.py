@@ -58,3 +58,94 @@ def test_vertices_within_names_the_primitives_closer_than_the_distance():
     # the point-triangle pair of vertex 3 loads vertex 3 and the plate's three vertices
     assert near.tolist() == [True, True, True, True, False, False]
     assert bc.vertices_within(v, 0.2).all()
+
+
+# -- lagged friction on the barrier (BarrierContact(friction=mu, friction_slip=eps)) ----------------------
+# A block rests on a fixed slab of the same model under a normal pressure p_n, then gets a tangential
+# traction p_t on its top: the same experiment as tests/solvers/test_friction.py for the lagged planes.
+
+H = 0.01
+MU = 0.5
+EPS = 1e-7  # m
+
+
+def _block_on_slab():
+    from headsim.mesh import TetMesh
+    from headsim.solvers.fem import fem_from_tetmesh
+    from headsim.solvers.grids import block_tetmesh
+    from headsim.solvers.materials import Material
+
+    mat = Material.from_kpa(10.0, 0.3, 1000.0)
+    dhat = 1e-3 * H
+    # the block off the slab's grid lines: no bottom vertex above a slab edge or vertex (degenerate pairs)
+    block = block_tetmesh((H, H, H), (3, 3, 3), origin=(0.17 * H, 0.23 * H, 0.5 * dhat))
+    slab = block_tetmesh((3 * H, 3 * H, 0.5 * H), (3, 3, 1), origin=(-H, -H, -0.5 * H))
+    nb = block.n_vertices
+    mesh = TetMesh(np.vstack([block.vertices, slab.vertices]), np.vstack([block.tets, slab.tets + nb]),
+                   fixed=np.r_[np.zeros(nb, bool), np.ones(slab.n_vertices, bool)], name="block on slab")
+    tri = mesh.boundary_triangles
+    model = fem_from_tetmesh(mesh, mat)
+    bottom = tri[np.all(np.isclose(mesh.vertices[tri][:, :, 2], 0.5 * dhat), axis=1)]
+    top_slab = tri[np.all(np.isclose(mesh.vertices[tri][:, :, 2], 0.0), axis=1)]
+    from headsim.solvers.contact import surface_vertex_areas
+
+    top_areas = surface_vertex_areas(mesh.n_vertices, tri[np.all(np.isclose(mesh.vertices[tri][:, :, 2],
+                                                                             H + 0.5 * dhat), axis=1)], mesh.vertices)
+    contact = BarrierContact(mesh.vertices, np.vstack([bottom, top_slab]), dhat, mat.young_modulus,
+                             friction=MU, friction_slip=EPS)
+    return model, contact, top_areas, mat
+
+
+def _solve_on_slab(model, contact, top_areas, p_n, p_t, x0=None):
+    from dataclasses import replace
+
+    from headsim.solvers.contact import QuasiStaticOptions, solve_quasi_static
+    from headsim.solvers.newton import NewtonOptions
+
+    ext = np.zeros((model.n_vertices, 3))
+    ext[:, 2] = -p_n * top_areas
+    ext[:, 0] = p_t * top_areas
+    contact.tolerance = 1e-9 * p_n * H * H
+    opts = QuasiStaticOptions(force_tolerance=1e-10 * p_n * H * H, max_contact_updates=30,
+                              newton=NewtonOptions(max_iterations=200, try_exact_hessian=True,
+                                                   exact_after_full_step=True))
+    return solve_quasi_static(replace(model, external_force=ext), [contact], initial_positions=x0, options=opts)
+
+
+def test_barrier_friction_below_the_coulomb_limit_sticks_and_balances_the_load():
+    """p_t = mu p_n / 2: the contact forces on the block (barrier + friction) balance both loads
+    exactly; friction carries the tangential load (all but the tangential part of the barrier's pair
+    forces, which tilt with the block: 1.6e-4 of it measured), inside the Coulomb cone summed over the
+    block (|F_t| <= mu N); the lagged normal forces were refreshed to their fixed point."""
+    model, contact, top_areas, mat = _block_on_slab()
+    p_n = 1e-2 * mat.young_modulus
+    first = _solve_on_slab(model, contact, top_areas, p_n, 0.0)
+    p_t = 0.5 * MU * p_n
+    res = _solve_on_slab(model, contact, top_areas, p_n, p_t, x0=first.positions)
+    n_total, t_total = p_n * H * H, p_t * H * H
+    block = ~np.asarray(model.fixed)
+    total = res.contact_forces[block].sum(axis=0)
+    assert total == pytest.approx([-t_total, 0.0, n_total], abs=1e-6 * n_total)
+    friction = contact.friction_forces(res.positions)[block].sum(axis=0)
+    assert -friction[0] / t_total > 0.99
+    normal = total - friction
+    assert np.linalg.norm(friction[:2]) <= MU * normal[2] * (1 + 1e-9)
+    assert res.contact_updates >= 2  # the lagged normal forces were refreshed
+
+
+def test_barrier_friction_above_the_coulomb_limit_has_no_static_equilibrium():
+    from headsim.errors import ConvergenceError
+
+    model, contact, top_areas, mat = _block_on_slab()
+    p_n = 1e-2 * mat.young_modulus
+    first = _solve_on_slab(model, contact, top_areas, p_n, 0.0)
+    with pytest.raises(ConvergenceError):
+        _solve_on_slab(model, contact, top_areas, p_n, 1.5 * MU * p_n, x0=first.positions)
+
+
+def test_barrier_friction_needs_a_slip_length():
+    from headsim.errors import ParameterError
+
+    v, tri = _vertex_over_plate(0.1)
+    with pytest.raises(ParameterError, match="friction_slip"):
+        BarrierContact(v, tri, 1e-3, 1.0, friction=0.3)

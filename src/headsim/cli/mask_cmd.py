@@ -111,8 +111,6 @@ def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes", rotat
     if mode == "condensed" and contact != "planes":
         raise ParameterError("--contact applies to the nonlinear mode only (the condensed mode has its own "
                              "complementarity contact)")
-    if contact == "barrier" and friction > 0:
-        raise ParameterError("--friction is not available with --contact barrier (frictionless barrier only)")
     return mode
 
 

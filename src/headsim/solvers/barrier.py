@@ -29,6 +29,24 @@ bindings (``ipctk``, MIT licence); this module maps them onto the model's degree
 the :class:`headsim.solvers.contact.ContactTerm` interface of :func:`solve_quasi_static`.
 Contact pairs are rebuilt from the current positions at every evaluation (no lagged data): the
 energy is one function of the positions, so Newton's method converges on it directly.
+
+**Friction** (``friction`` = mu > 0, ``friction_slip`` = eps, m): IPC's lagged smoothed Coulomb
+friction (Li et al. 2020 sec. 5), in its quasi-static form: the dissipation potential
+
+    D(x) = sum_k mu lambda_k f0(|T_k^T Gamma_k (x - x_a)|),  f0'(s) = min(s / eps, 1)
+
+over the tangential collisions k built from the barrier's contact pairs at a lagged configuration
+(their normal force lambda_k from the barrier, their tangent basis T_k and closest-point weights
+Gamma_k frozen there), with x_a the anchor configuration: the start of the solve, so the tangential
+displacement is the load step's relative slip of the two surfaces (ipctk's FrictionPotential with the
+displacement x - x_a in place of a velocity times the time step). Its force is mu lambda_k times the
+slip direction where the slip exceeds eps (sliding) and the spring mu lambda_k / eps times the slip
+below it (sticking): the regularised Coulomb law. The lagged lambda, T, Gamma are refreshed at the
+current configuration by :meth:`BarrierContact.update` (the outer loop of
+:func:`headsim.solvers.solve_quasi_static`) until the friction forces move by less than
+``tolerance`` (N). Pairs that touch only after the start count their slip from the anchor, i.e.
+including the tangential part of their approach: the usual approximation of one quasi-static load
+step (smaller force increments, warm-started, reduce it).
 """
 
 from __future__ import annotations
@@ -72,6 +90,8 @@ class BarrierContact:
         component of these triangles never interact (no self-contact), pairs of different components do
     dhat : m, barrier activation distance (thickness of the contact layer)
     stiffness : kappa, Pa (the contact pressure scale, module doc)
+    friction : Coulomb coefficient mu (0: frictionless); friction_slip : eps, m, the slip below which a
+        contact sticks (the regularisation; needed when friction > 0)
     threads : ipctk's thread count (a process-wide setting of the IPC Toolkit, set here). 1, the
         default, makes a solve reproducible: ipctk's parallel broad phase and CCD reduce in a
         scheduling-dependent order, and the mask fit's Newton path is sensitive to the last bits
@@ -85,7 +105,7 @@ class BarrierContact:
     """
 
     def __init__(self, rest_positions: np.ndarray, triangles: np.ndarray, dhat: float, stiffness: float,
-                 threads: int | None = 1):
+                 threads: int | None = 1, friction: float = 0.0, friction_slip: float | None = None):
         import ipctk
 
         if threads is not None:
@@ -97,6 +117,16 @@ class BarrierContact:
             raise ParameterError("barrier contact needs a non-empty (t, 3) triangle array")
         if not (np.isfinite(dhat) and dhat > 0 and np.isfinite(stiffness) and stiffness > 0):
             raise ParameterError(f"barrier dhat and stiffness must be > 0, got {dhat} m, {stiffness} Pa")
+        if not (np.isfinite(friction) and friction >= 0):
+            raise ParameterError(f"friction coefficient must be >= 0, got {friction}")
+        if friction > 0 and not (friction_slip is not None and np.isfinite(friction_slip) and friction_slip > 0):
+            raise ParameterError("friction > 0 needs friction_slip > 0 (m), the stick/slip regularisation")
+        self.mu = float(friction)
+        self.eps = float(friction_slip) if friction > 0 else None
+        #: N: the outer loop ends when an update moves no friction force by more than this
+        self.tolerance = 1e-9
+        self._tangential = None  # lagged ipctk TangentialCollisions
+        self._anchor = None      # surface positions at the start (the slip's origin)
         self.n = len(x)
         self.dhat = float(dhat)
         self.stiffness = float(stiffness)
@@ -108,6 +138,7 @@ class BarrierContact:
         self.mesh.can_collide = ipctk.make_connected_components_filter(faces)
         self.areas = np.asarray(self.mesh.vertex_areas, dtype=np.float64).copy()  # m^2 per contact vertex
         self.potential = ipctk.BarrierPotential(ipctk.NormalizedClampedLogBarrier(), self.dhat, self.stiffness, True)
+        self.friction_potential = ipctk.FrictionPotential(self.eps) if self.mu > 0 else None
         dof = (3 * self.ids[:, None] + np.arange(3)).ravel()
         self._dof = dof
         self._key = None
@@ -162,19 +193,51 @@ class BarrierContact:
     # -- ContactTerm interface -------------------------------------------------------------------
     def energy(self, x, u) -> float:
         c, v = self.collisions(x)
+        e = self._friction_energy(x)
         if len(c) == 0:
-            return 0.0
+            return e
         if c.compute_minimum_distance(self.mesh, v) <= 0.0:
             return np.inf
-        e = float(self.potential(c, self.mesh, v))
+        e += float(self.potential(c, self.mesh, v))
         return e if np.isfinite(e) else np.inf
 
-    def _full_gradient(self, x) -> np.ndarray:
+    def _normal_gradient(self, x) -> np.ndarray:
         c, v = self.collisions(x)
         g = np.zeros(3 * self.n)
         if len(c):
             g[self._dof] = self.potential.gradient(c, self.mesh, v)
         return g
+
+    def _full_gradient(self, x) -> np.ndarray:
+        g = self._normal_gradient(x)
+        if self._has_friction():
+            g[self._dof] += self.friction_potential.gradient(self._tangential, self.mesh, self._slip(x))
+        return g
+
+    # -- lagged friction (module doc) --------------------------------------------------------------
+    def _has_friction(self) -> bool:
+        return self.friction_potential is not None and self._tangential is not None and len(self._tangential) > 0
+
+    def _slip(self, x) -> np.ndarray:
+        """(k, 3) m: displacement of the contact surfaces since the anchor (ipctk's "velocities")."""
+        return np.asfortranarray(self._surface(x) - self._anchor)
+
+    def _friction_energy(self, x) -> float:
+        return float(self.friction_potential(self._tangential, self.mesh, self._slip(x))) if self._has_friction() else 0.0
+
+    def _lag_friction(self, x) -> None:
+        c, v = self.collisions(x)
+        t = self._ipc.TangentialCollisions()
+        if len(c):
+            t.build(self.mesh, v, c, self.potential, self.mu)
+        self._tangential = t
+
+    def friction_forces(self, x, u=None) -> np.ndarray:
+        """(n, 3) N, the friction force on every model vertex (zero without friction)."""
+        f = np.zeros(3 * self.n)
+        if self._has_friction():
+            f[self._dof] = -self.friction_potential.gradient(self._tangential, self.mesh, self._slip(x))
+        return f.reshape(-1, 3)
 
     def gradient(self, x, u):
         return self._full_gradient(x).reshape(-1, 3), np.zeros(len(u))
@@ -190,7 +253,10 @@ class BarrierContact:
         if len(c) == 0:
             return sp.csr_matrix((n_dof, n_dof))
         method = self._ipc.PSDProjectionMethod.CLAMP if project else self._ipc.PSDProjectionMethod.NONE
-        h = self.potential.hessian(c, self.mesh, v, method).tocoo()
+        h = self.potential.hessian(c, self.mesh, v, method)
+        if self._has_friction():
+            h = h + self.friction_potential.hessian(self._tangential, self.mesh, self._slip(x), method)
+        h = h.tocoo()
         return sp.csr_matrix((h.data, (self._dof[h.row], self._dof[h.col])), shape=(n_dof, n_dof))
 
     def step_fraction(self, x0, u0, x1, u1) -> float:
@@ -198,19 +264,30 @@ class BarrierContact:
         return float(self._ipc.compute_collision_free_stepsize(self.mesh, self._surface(x0), self._surface(x1)))
 
     def update(self, x, u) -> bool:
-        return False  # nothing lagged (module doc)
+        """Frictionless: nothing lagged (module doc). With friction: the tangential collisions, their
+        normal forces and bases taken at x; True when that moves a friction force by more than
+        ``tolerance`` (N)."""
+        if self.friction_potential is None:
+            return False
+        before = self.friction_forces(x)
+        self._lag_friction(x)
+        return bool(np.max(np.abs(self.friction_forces(x) - before), initial=0.0) > self.tolerance)
 
     def start(self, x, u) -> None:
         if self.intersecting(x):
             raise ParameterError("barrier contact: the surfaces already intersect at the start")
+        if self.friction_potential is not None:
+            self._anchor = self._surface(x).copy()
+            self._lag_friction(x)
 
     def vertex_forces(self, x, u) -> np.ndarray:
         """(n, 3) N, contact force on every model vertex (minus the energy gradient)."""
         return -self._full_gradient(x).reshape(-1, 3)
 
     def vertex_pressure(self, x, u) -> np.ndarray:
-        """(n,) Pa, contact force magnitude over the vertex area on its contact surface."""
-        f = self.vertex_forces(x, u)[self.ids]
+        """(n,) Pa, the barrier's (normal) contact force magnitude over the vertex area on its contact
+        surface; friction is tangential and not part of it."""
+        f = -self._normal_gradient(x).reshape(-1, 3)[self.ids]
         p = np.zeros(self.n)
         p[self.ids] = np.linalg.norm(f, axis=1) / np.maximum(self.areas, 1e-300)
         return p
