@@ -46,7 +46,10 @@ current configuration by :meth:`BarrierContact.update` (the outer loop of
 :func:`headsim.solvers.solve_quasi_static`) until the friction forces move by less than
 ``tolerance`` (N). Pairs that touch only after the start count their slip from the anchor, i.e.
 including the tangential part of their approach: the usual approximation of one quasi-static load
-step (smaller force increments, warm-started, reduce it).
+step. Where such a pair's partner switches between two faces of a kinked surface the approach
+projects onto their tangent planes in opposite directions and the outer loop can alternate between
+two states (the mask fit on the bundled face: :mod:`headsim.mask.fit`, "Barrier contact", which
+therefore does not offer friction with the barrier).
 """
 
 from __future__ import annotations
