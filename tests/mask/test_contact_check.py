@@ -103,7 +103,6 @@ def test_barrier_check_flags_load_on_skin_away_from_the_cushion():
 
 @pytest.mark.parametrize("args, message", [
     (["--contact", "barrier", "--mode", "condensed"], "nonlinear mode only"),
-    (["--contact", "barrier", "--friction", "0.5"], "not available with --contact barrier"),
     (["--contact", "ipc"], "--contact must be 'planes' or 'barrier'"),
 ])
 def test_cli_refuses_impossible_contact_options(tmp_path, capsys, args, message):
@@ -140,11 +139,16 @@ def test_barrier_report_names_the_contact_model_and_its_clean_check(tmp_path):
     assert "IPC barrier" in (tmp_path / "report.html").read_text()
 
 
-def test_fit_options_refuse_barrier_with_friction():
-    """The barrier's lagged friction is a solver feature (tests/solvers/test_barrier.py) that the fit does
-    not offer: its outer loop alternates on the bundled face (headsim.mask.fit, "Barrier contact")."""
-    from headsim.errors import ParameterError
-    from headsim.mask.fit import FitOptions
+def test_barrier_with_friction_reaches_the_contact_term():
+    """``--contact barrier --friction MU``: the barrier contact carries the lagged Coulomb friction
+    (its physics is tested on a block in tests/solvers/test_barrier.py) with the fit's stick length and
+    the outer loop's force tolerance."""
+    from headsim.cli import mask_cmd
+    from headsim.mask.fit import FRICTION_SLIP_FRACTION, UPDATE_TOL, _contact_terms
 
-    with pytest.raises(ParameterError, match="contact='planes' only"):
-        FitOptions(contact="barrier", friction=0.5)
+    assert mask_cmd._check_mode("nonlinear", 0.5, "barrier") == "nonlinear"
+    p = coarse_barrier_problem()
+    p = replace(p, options=replace(p.options, friction=0.5))
+    contact, _ = _contact_terms(p, p.model.rest_positions[p.shell_vertices], UPDATE_TOL * 15.0)
+    assert contact.mu == 0.5 and contact.eps == pytest.approx(FRICTION_SLIP_FRACTION * p.skin_edge)
+    assert contact.tolerance == pytest.approx(UPDATE_TOL * 15.0)

@@ -149,3 +149,28 @@ def test_barrier_friction_needs_a_slip_length():
     v, tri = _vertex_over_plate(0.1)
     with pytest.raises(ParameterError, match="friction_slip"):
         BarrierContact(v, tri, 1e-3, 1.0, friction=0.3)
+
+
+def test_barrier_friction_counts_slip_from_where_a_vertex_first_touched():
+    """A vertex that touches only during the solve (it starts 2 dhat above the plate and lands 0.2 m
+    aside) has its slip counted from the first accepted iterate at which it touched: moved on by
+    delta = eps / 10, it sticks with IPC's mollified force mu lambda f1(delta), f1(y) = 2y/eps - y^2/eps^2
+    (Li et al. 2020 eq. 15), where counting from the start (0.2 m of 'slip') would make it slide with
+    mu lambda."""
+    dhat, kappa, mu, eps = 1e-2, 3e4, 0.5, 1e-3
+    v, tri = _vertex_over_plate(2 * dhat)
+    bc = BarrierContact(v, tri, dhat, kappa, friction=mu, friction_slip=eps)
+    u = np.zeros(0)
+    bc.start(v, u)
+    landed = v.copy()
+    landed[3:, 2] -= 1.5 * dhat
+    landed[3:, 0] += 0.2
+    bc.gradient(landed, u)  # an accepted Newton iterate: vertex 3 now within dhat of the plate
+    moved = landed.copy()
+    moved[3:, 0] += 0.1 * eps
+    assert bc.update(moved, u)  # friction appears: the lagged data changed
+    f = bc.friction_forces(moved)
+    lam = bc.vertex_forces(moved, u)[3, 2] - f[3, 2]  # the barrier's normal force on vertex 3
+    y = 0.1 * eps
+    assert f[3, 0] == pytest.approx(-mu * lam * (2 * y / eps - (y / eps) ** 2), rel=1e-6)
+    assert f[3, 1] == pytest.approx(0.0, abs=1e-12 * lam)

@@ -108,9 +108,6 @@ def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes", rotat
         raise ParameterError("--friction applies to the nonlinear mode only (the condensed mode has no friction model)")
     if contact not in ("planes", "barrier"):
         raise ParameterError(f"--contact must be 'planes' or 'barrier', got {contact!r}")
-    if contact == "barrier" and friction > 0:
-        raise ParameterError("--friction is not available with --contact barrier (the barrier's lagged friction "
-                             "does not converge on the bundled face; use --contact planes with friction)")
     if mode == "condensed" and contact != "planes":
         raise ParameterError("--contact applies to the nonlinear mode only (the condensed mode has its own "
                              "complementarity contact)")

@@ -125,21 +125,19 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   modulus), pairs rebuilt from the current positions at every Newton evaluation; both directions
   (skin into cushion and cushion into skin); Newton steps limited by continuous collision detection,
   so the surfaces never cross. The start is the axial first contact backed off until nothing crosses
-  (:func:`barrier_start_offset`); a warm start that crosses is discarded. Frictionless in the fit:
-  :class:`headsim.solvers.barrier.BarrierContact` has IPC's lagged Coulomb friction (slip counted
-  from the solve's start, normal forces and tangent bases refreshed in the outer loop until no
-  friction force moves by more than a tolerance; tested on a block on a slab), and on the coarse
-  test problem at 15 N, mu = 0.5, stick length as below, it converged (198 Newton iterations in 7
-  updates, 30 s against 94 / 16 s frictionless; consistent by the contact check, balance 6e-5), but
-  on the demo configuration (4 mm) the outer loop alternates between two states for 30 updates, at
-  2.5 N and at 15 N: a cushion vertex over an edge between two skin triangles (a kink of the skin)
-  switches its pairs between the two faces, and the slip since the start -- mostly the pair's
-  approach -- projects onto the two faces' tangent planes in opposite directions (friction 0.02-0.05 N
-  flipping at ~8 vertices). Anchoring each vertex where it first touches instead removes the
-  cycle but also the friction (a vertex anchored at the end of the solve in which it touched has
-  no slip, so the loop stops after one update with the frictionless answer). So ``FitOptions``
-  refuses barrier + friction; a per-pair anchor at the moment of first contact (tracked inside the
-  Newton solve) is the missing piece.
+  (:func:`barrier_start_offset`); a warm start that crosses is discarded. With ``friction`` > 0 the
+  barrier carries IPC's lagged Coulomb friction (:class:`headsim.solvers.barrier.BarrierContact`,
+  "Friction": each surface vertex's slip counted from where it first touched, normal forces and
+  tangent bases refreshed in the outer loop until no friction force moves by more than ``UPDATE_TOL``
+  x F; stick length as below). Demo configuration, mu = 0.5 (cold fits): 2.5 N in 5 updates / 66
+  Newton iterations (13.5 s; pitch -0.29 deg against -0.76, leak 2.0 against 6.4 L/min
+  frictionless); 15 N in 20 updates / 294 iterations (64 s; pitch -2.5 deg against -5.6, area 14.3
+  against 13.4 cm2, peak 68 against 74 kPa, leak 0.31 against 18.1 L/min): friction keeps the
+  cushion from rolling at the nasal bridge's corners, where the frictionless barrier leaks (below).
+  Counting every vertex's slip from the solve's start instead (the usual one-load-step form) made
+  the outer loop alternate for 30 updates at 2.5 and 15 N: a cushion vertex over an edge between two
+  skin triangles switched its pairs between the two faces, and its approach, counted as slip,
+  projected onto their tangent planes in opposite directions.
   Measured (``tests/mask/test_contact_check.py``): on the coarse problem at 15 N no loaded skin
   vertex lies farther than 0.1 x edge from the cushion and nothing interpenetrates (the planes fail
   both). Demo configuration (``python benchmarks/bench_mask.py --contact barrier --fits-only``,
@@ -205,9 +203,9 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   :class:`FitProblem`) starts from that equilibrium; when it fails, a cold start is tried. The fit
   is refused (ConvergenceError) when neither converges, when tets invert, or when the contact force
   does not balance the strap force within ``balance_tolerance``.
-- **Friction** (``FitOptions.friction`` = mu, ``--friction``; planes contact only, see "Barrier
-  contact" above): Coulomb friction between skin and cushion with the lagged, regularised
-  stick/slide potential of :class:`headsim.solvers.PlaneContact` (IPC's lagged friction, Li et al. 2020 sec. 5; its energy,
+- **Friction** (``FitOptions.friction`` = mu, ``--friction``; with the barrier see "Barrier contact"
+  above): Coulomb friction between skin and cushion with the lagged, regularised stick/slide
+  potential of :class:`headsim.solvers.PlaneContact` (IPC's lagged friction, Li et al. 2020 sec. 5; its energy,
   gradient and Hessian are used as they are, :func:`_axial_friction_update` only keeps the anchors
   and the lagged normal forces of the axial contact planes). A skin vertex is anchored where its
   line along the approach axis meets the cushion, i.e. where an axial approach touches; the outer
@@ -489,10 +487,6 @@ class FitOptions:
             raise ParameterError(f"contact_layer must be 1e-7 to 1e-3 m, got {self.contact_layer}")
         if self.barrier_stiffness is not None and not (np.isfinite(self.barrier_stiffness) and self.barrier_stiffness > 0):
             raise ParameterError(f"barrier_stiffness must be > 0 Pa or None, got {self.barrier_stiffness}")
-        if self.contact == "barrier" and self.friction > 0:
-            raise ParameterError("friction is available with contact='planes' only: the barrier's lagged friction "
-                                 "(headsim.solvers.barrier) alternates between two states at the skin's kinks on the "
-                                 "bundled face (module doc, 'Barrier contact'); pass contact='planes' with friction")
         if not (np.isfinite(self.friction) and 0 <= self.friction <= 3):
             raise ParameterError(f"friction coefficient must be 0-3, got {self.friction}")
         for name in ("tissue_modulus", "tissue_density", "tissue_thickness", "penalty_factor",
@@ -1016,8 +1010,11 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     if p.options.contact == "barrier":
         from headsim.solvers.barrier import BarrierContact
 
-        contact = BarrierContact(p.model.rest_positions, p.contact_surfaces,
-                                 p.options.contact_layer, p.barrier_stiffness)
+        mu = float(p.options.friction)
+        contact = BarrierContact(p.model.rest_positions, p.contact_surfaces, p.options.contact_layer,
+                                 p.barrier_stiffness, friction=mu,
+                                 friction_slip=FRICTION_SLIP_FRACTION * p.skin_edge if mu > 0 else None)
+        contact.tolerance = tolerance
         return contact, attach
     mu = float(p.options.friction)
     contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty, friction=mu,

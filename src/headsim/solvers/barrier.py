@@ -37,19 +37,20 @@ friction (Li et al. 2020 sec. 5), in its quasi-static form: the dissipation pote
 
 over the tangential collisions k built from the barrier's contact pairs at a lagged configuration
 (their normal force lambda_k from the barrier, their tangent basis T_k and closest-point weights
-Gamma_k frozen there), with x_a the anchor configuration: the start of the solve, so the tangential
-displacement is the load step's relative slip of the two surfaces (ipctk's FrictionPotential with the
-displacement x - x_a in place of a velocity times the time step). Its force is mu lambda_k times the
+Gamma_k frozen there), with x_a the anchors: each surface vertex's position at the first accepted
+Newton iterate at which it took part in a contact pair (within dhat) -- for the pairs already within
+dhat, the start -- so the tangential displacement is the two surfaces' relative slip since they
+touched (ipctk's FrictionPotential with the displacement x - x_a in place of a velocity times the
+time step; a vertex first seen touching at an update is anchored there). Its force is mu lambda_k times the
 slip direction where the slip exceeds eps (sliding) and the spring mu lambda_k / eps times the slip
 below it (sticking): the regularised Coulomb law. The lagged lambda, T, Gamma are refreshed at the
 current configuration by :meth:`BarrierContact.update` (the outer loop of
 :func:`headsim.solvers.solve_quasi_static`) until the friction forces move by less than
-``tolerance`` (N). Pairs that touch only after the start count their slip from the anchor, i.e.
-including the tangential part of their approach: the usual approximation of one quasi-static load
-step. Where such a pair's partner switches between two faces of a kinked surface the approach
-projects onto their tangent planes in opposite directions and the outer loop can alternate between
-two states (the mask fit on the bundled face: :mod:`headsim.mask.fit`, "Barrier contact", which
-therefore does not offer friction with the barrier).
+``tolerance`` (N). Anchoring every vertex at the solve's start instead (one quasi-static load step)
+counts the approach of pairs that touch later as slip: where such a pair's partner switches between
+two faces of a kinked surface the approach projects onto their tangent planes in opposite directions
+and the outer loop alternated between two states (the mask fit on the bundled face,
+:mod:`headsim.mask.fit`, "Barrier contact").
 """
 
 from __future__ import annotations
@@ -129,7 +130,9 @@ class BarrierContact:
         #: N: the outer loop ends when an update moves no friction force by more than this
         self.tolerance = 1e-9
         self._tangential = None  # lagged ipctk TangentialCollisions
-        self._anchor = None      # surface positions at the start (the slip's origin)
+        self._anchor = None      # (k, 3) per surface vertex: the slip's origin (where it first touched)
+        self._anchored = None
+        self._first_touch = None
         self.n = len(x)
         self.dhat = float(dhat)
         self.stiffness = float(stiffness)
@@ -234,6 +237,12 @@ class BarrierContact:
         if len(c):
             t.build(self.mesh, v, c, self.potential, self.mu)
         self._tangential = t
+        # the slip of a vertex counts from where it first touched (module doc); vertices that touch now
+        # without a recorded first touch are anchored here
+        self._note_first_touch(x)
+        fresh = ~self._anchored & ~np.isnan(self._first_touch[:, 0])
+        self._anchor[fresh] = self._first_touch[fresh]
+        self._anchored |= fresh
 
     def friction_forces(self, x, u=None) -> np.ndarray:
         """(n, 3) N, the friction force on every model vertex (zero without friction)."""
@@ -243,7 +252,21 @@ class BarrierContact:
         return f.reshape(-1, 3)
 
     def gradient(self, x, u):
+        if self.friction_potential is not None and self._first_touch is not None:
+            self._note_first_touch(x)
         return self._full_gradient(x).reshape(-1, 3), np.zeros(len(u))
+
+    def _note_first_touch(self, x) -> None:
+        """Record where each surface vertex first takes part in a contact pair (within dhat). The Newton
+        solve asks for the gradient at its accepted iterates only, so this is the first accepted
+        iterate at which the vertex touches (to within one Newton step)."""
+        c, v = self.collisions(x)
+        if not len(c):
+            return
+        edges, faces = self.mesh.edges, self.mesh.faces
+        ids = np.unique([i for k in range(len(c)) for i in c[k].vertex_ids(edges, faces) if i >= 0])
+        new = ids[np.isnan(self._first_touch[ids, 0])]
+        self._first_touch[new] = v[new]
 
     #: :func:`solve_quasi_static` passes ``project`` (exact Hessian first, projected as the fallback)
     projects_hessian = True
@@ -280,7 +303,9 @@ class BarrierContact:
         if self.intersecting(x):
             raise ParameterError("barrier contact: the surfaces already intersect at the start")
         if self.friction_potential is not None:
-            self._anchor = self._surface(x).copy()
+            self._anchor = np.asfortranarray(self._surface(x).copy())
+            self._anchored = np.zeros(len(self.ids), dtype=bool)
+            self._first_touch = np.full((len(self.ids), 3), np.nan)
             self._lag_friction(x)
 
     def vertex_forces(self, x, u) -> np.ndarray:
