@@ -132,8 +132,13 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   x F; stick length as below). Demo configuration, mu = 0.5 (cold fits): 2.5 N in 5 updates / 66
   Newton iterations (13.5 s; pitch -0.29 deg against -0.76, leak 2.0 against 6.4 L/min
   frictionless); 15 N in 20 updates / 294 iterations (64 s; pitch -2.5 deg against -5.6, area 14.3
-  against 13.4 cm2, peak 68 against 74 kPa, leak 0.31 against 18.1 L/min): friction keeps the
+  against 13.4 cm2, peak 68 against 74 kPa, leak 0.31 against 18.1 L/min); 30 N in 8 updates / 389
+  iterations (127 s; pitch -5.2 deg, 17.3 cm2, peak 127 kPa, leak 0.23 L/min): friction keeps the
   cushion from rolling at the nasal bridge's corners, where the frictionless barrier leaks (below).
+  Not robust: the cold 8 N fit fails (ConvergenceError after 30 updates): 7-11 vertices at skin kinks
+  keep alternating by 0.02-0.03 N between two pair sets; halving the update of the lagged normal
+  forces (under-relaxation) leaves the same 2-cycle, so it is the tangent bases of the pairs that
+  switch faces, not the normal forces.
   Counting every vertex's slip from the solve's start instead (the usual one-load-step form) made
   the outer loop alternate for 30 updates at 2.5 and 15 N: a cushion vertex over an edge between two
   skin triangles switched its pairs between the two faces, and its approach, counted as slip,
