@@ -33,7 +33,8 @@ energy is one function of the positions, so Newton's method converges on it dire
 **Friction** (``friction`` = mu > 0, ``friction_slip`` = eps, m): IPC's lagged smoothed Coulomb
 friction (Li et al. 2020 sec. 5), in its quasi-static form: the dissipation potential
 
-    D(x) = sum_k mu lambda_k f0(|T_k^T Gamma_k (x - x_a)|),  f0'(s) = min(s / eps, 1)
+    D(x) = sum_k mu lambda_k f0(|T_k^T Gamma_k (x - x_a)|),  f0'(s) = f1(s) = 2 s / eps - s^2 / eps^2
+                                                                   (s < eps), 1 (s >= eps)
 
 over the tangential collisions k built from the barrier's contact pairs at a lagged configuration
 (their normal force lambda_k from the barrier, their tangent basis T_k and closest-point weights
@@ -41,9 +42,9 @@ Gamma_k frozen there), with x_a the anchors: each surface vertex's position at t
 Newton iterate at which it took part in a contact pair (within dhat) -- for the pairs already within
 dhat, the start -- so the tangential displacement is the two surfaces' relative slip since they
 touched (ipctk's FrictionPotential with the displacement x - x_a in place of a velocity times the
-time step; a vertex first seen touching at an update is anchored there). Its force is mu lambda_k times the
-slip direction where the slip exceeds eps (sliding) and the spring mu lambda_k / eps times the slip
-below it (sticking): the regularised Coulomb law. The lagged lambda, T, Gamma are refreshed at the
+time step; a vertex first seen touching at an update is anchored there). Its force is mu lambda_k
+f1(s) along the slip (Li et al. 2020 eq. 15): the Coulomb force mu lambda_k where the slip s exceeds
+eps (sliding), a stiff, smooth rise from 0 below it (sticking): the regularised Coulomb law. The lagged lambda, T, Gamma are refreshed at the
 current configuration by :meth:`BarrierContact.update` (the outer loop of
 :func:`headsim.solvers.solve_quasi_static`) until the friction forces move by less than
 ``tolerance`` (N). Anchoring every vertex at the solve's start instead (one quasi-static load step)
