@@ -167,6 +167,9 @@ def main(argv=None) -> None:
     ap.add_argument("--quick", action="store_true", help="fewer explicit steps, looser search tolerance")
     ap.add_argument("--contact", default="planes", choices=("planes", "barrier"),
                     help="the nonlinear fit's contact model (FitOptions.contact)")
+    ap.add_argument("--friction", type=float, default=0.0, help="skin-cushion Coulomb coefficient (FitOptions.friction)")
+    ap.add_argument("--rotation", default="free", choices=("free", "held"),
+                    help="the mask's orientation: turns on its strap (free) or held by the headgear")
     ap.add_argument("--fits-only", action="store_true",
                     help="only the set-up, the two fits and the search (no factorisation, condensed or seed sections)")
     args = ap.parse_args(argv)
@@ -181,9 +184,10 @@ def main(argv=None) -> None:
     face = load_surface(face_path("neutral"))
     lm, t_lm = _timed(find_landmarks, face)
     problem, t_prep = _timed(prepare_fit, face, make_mask("nasal-M", edge_length=4e-3),
-                               FitOptions(contact=args.contact), landmarks=lm)
+                               FitOptions(contact=args.contact, friction=args.friction,
+                                          rotate=args.rotation == "free"), landmarks=lm)
     d = problem.describe()
-    print(f"contact model: {args.contact}")
+    print(f"contact model: {args.contact}, friction {args.friction:g}, rotation {args.rotation}")
     print(f"set-up: landmarks {t_lm:.2f} s, placement + tissue + model {t_prep:.2f} s; model {d['model_vertices']} "
           f"vertices / {d['model_tets']} tets ({d['cropped_skin_vertices']} skin vertices)")
     cold, t_cold = _timed(problem_fit, problem, 15.0)
