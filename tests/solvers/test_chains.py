@@ -584,7 +584,7 @@ def test_fibre_domains_are_balanced_and_cut_few_rows():
             assert cross == 20
             ends = np.bincount(part[np.concatenate([fa, fb[m]])], minlength=2)
             assert abs(ends[0] - ends[1]) <= 2 * 21
-    assert ChainOptions().contact_domains == 2
+    assert ChainOptions().contact_domains == 1
     with pytest.raises(ParameterError):
         ChainOptions(contact_domains=0)
 
