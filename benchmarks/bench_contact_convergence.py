@@ -99,7 +99,7 @@ def _residuals(a, u):
     """(max bound violation m/s, max joint gap-rate residual m/s) of twists u for the captured arguments."""
     (body, partner, normal, lever, plever, target) = a[10:16]
     jk, jl, jrk, jrl, jt = a[27:32]
-    n_rows = a[-1]
+    n_rows = a[35]
 
     def vel(b, r):
         return u[b, :3] + np.cross(u[b, 3:], r)
@@ -164,8 +164,8 @@ def main():
     def m2(du):
         return float((mass * (du[:, :3] ** 2).sum(1)).sum() + np.einsum("sa,sab,sb->", du[:, 3:], Iw, du[:, 3:]))
 
-    print(f"t = {state.time:.3f} s, {scene.model.n_segments} segments, {a0[-1]} rows from the start, "
-          f"{len(a0[10]) - a0[-1]} candidates, {len(a0[27])} joints")
+    print(f"t = {state.time:.3f} s, {scene.model.n_segments} segments, {a0[35]} rows from the start, "
+          f"{len(a0[10]) - a0[35]} candidates, {len(a0[27])} joints")
     results = {}
     for n in sorted(args.sweeps):
         a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0]

@@ -483,6 +483,112 @@ def test_normal_projection_matches_primal_qp():
         assert np.abs(lam * (J @ out - target)).max() <= 1e-9 * vs * np.abs(lam).max() + 1e-300
 
 
+def _log_pile(columns=6, layers=4, friction=True):
+    """A pile of free one-segment fibres (70 µm × 1 mm logs along z) in ``columns`` × ``layers``, every log
+    above the lowest layer resting on the log below it (normal +y) and on the lower log of the next column
+    (normal (−1, 1)/√2), the lowest layer on a static floor; falling at 1 m/s with random twists (σ 0.5 m/s,
+    50 rad/s). Returns the arguments of
+    :func:`~headsim.solvers._kernels.chains_coupled.project_coupled` (no joints, contact rows only, targets 0:
+    the velocity solve of a resting pile) and the body domains columns < columns/2 → 0, the others → 1
+    (cross rows: the diagonal rows from the middle column pair)."""
+    n = columns * layers
+    L = 1e-3
+    cx = np.repeat(np.arange(columns), layers) * 2 * R_FIBRE
+    cy = np.tile(np.arange(layers), columns) * 2 * R_FIBRE + R_FIBRE
+    nodes = np.concatenate([[[x, y, -L / 2], [x, y, L / 2]] for x, y in zip(cx, cy)])
+    model, state = chain_model_from_polylines(nodes, np.arange(0, 2 * n + 1, 2), radius=R_FIBRE, anchored=False)
+    body, partner, normal = [], [], []
+    for c in range(columns):
+        for lay in range(layers):
+            i = c * layers + lay
+            if lay == 0:
+                body.append(i), partner.append(-1), normal.append([0.0, 1.0, 0.0])
+                continue
+            body.append(i), partner.append(i - 1), normal.append([0.0, 1.0, 0.0])
+            if c + 1 < columns:
+                body.append(i), partner.append(i + layers - 1), normal.append([-np.sqrt(0.5), np.sqrt(0.5), 0.0])
+    body, partner = np.array(body, np.int64), np.array(partner, np.int64)
+    normal = np.array(normal)
+    lever = -R_FIBRE * normal
+    plever = np.where((partner >= 0)[:, None], R_FIBRE * normal, 0.0)
+    nc = len(body)
+    rng = np.random.default_rng(7)
+    u = np.concatenate([rng.normal(0.0, 0.5, (n, 3)), rng.normal(0.0, 50.0, (n, 3))], 1)
+    u[:, 1] -= 1.0
+    if friction:
+        mc, ms = FrictionLaw.isotropic(0.47).generators()
+    else:
+        mc, ms = np.zeros(0), np.zeros(0)
+    z3 = np.zeros((0, 3))
+    args = [body, partner, normal, lever, plever, np.zeros(nc), u, model.mass.copy(), state.rotation,
+            model.inertia.copy(), mc, ms, 0.0, 0, 0.0, np.zeros(nc), np.zeros((nc, 2)), np.zeros(0, np.int64),
+            np.zeros(0, np.int64), z3, z3, z3, np.zeros((0, 3, 3)), z3, np.zeros(1, np.int64)]
+    part = (np.arange(n) // layers >= columns // 2).astype(np.int64)
+    return args, part
+
+
+def test_parallel_contact_domains_converge_to_the_same_solution():
+    """ChainOptions.contact_domains: the rows of each body domain are visited together (in parallel) and the
+    rows joining two domains after them. That is a Gauss–Seidel sweep in another row order, so run to
+    convergence it must reach the single-sequence solution. On a resting pile of 24 logs (39 rows, 3 of
+    them cross rows), frictionless (a strictly convex QP in u: one solution), both iterations are run until
+    a full sweep changes no velocity by more than 1e-13 m/s; the twists must agree to 1e-9 m/s, 1e-4 of
+    the default stopping rule contact_tolerance = 1e-5 m/s (a dropped or doubly visited row changes them by
+    ≈ the velocities of its bodies). Also: the domain order is a different iteration (after 2 sweeps the twists
+    differ by > 1e-9 m/s, so the comparison can tell the paths apart); all bodies in domain 0 is bitwise
+    the former single sequence; with friction the serial and the parallel (prange) kernels give bitwise
+    the same result with 2 domains (it does not depend on the threads)."""
+    from headsim.solvers._kernels import chains_coupled as KC
+
+    def run(part, sweeps, tol, friction=False, parallel=False):
+        args, dom = _log_pile(friction=friction)
+        args[13], args[14] = sweeps, tol
+        sw, change, _ = KC.project_coupled(*args, parallel=parallel, body_part=dom if isinstance(part, str) else part)
+        return args[6], args[15], sw, change, dom, args
+
+    u1, lam1, sw1, ch1, dom, args = run(None, 100000, 1e-13)
+    u2, lam2, sw2, ch2, _, _ = run("dom", 100000, 1e-13)
+    body, partner = args[0], args[1]
+    pa, pb = dom[body], np.where(partner >= 0, dom[np.maximum(partner, 0)], dom[body])
+    assert (pa != pb).sum() == 3 and set(pa[pa == pb]) == {0, 1}
+    assert ch1 <= 1e-13 and ch2 <= 1e-13 and sw1 < 100000 and sw2 < 100000
+    assert (lam1[pa != pb] > 1e-3 * lam1.max()).any()  # a cross row carries an impulse
+    np.testing.assert_allclose(u2, u1, rtol=0, atol=1e-9)
+    u1s = run(None, 2, 0.0)[0]
+    u2s = run("dom", 2, 0.0)[0]
+    assert np.abs(u1s - u2s).max() > 1e-9
+    assert np.array_equal(run(np.zeros(len(dom), np.int64), 2, 0.0)[0], u1s)
+    uf, lf = run("dom", 60, 1e-5, friction=True)[:2]
+    ufp, lfp = run("dom", 60, 1e-5, friction=True, parallel=True)[:2]
+    assert np.array_equal(uf, ufp) and np.array_equal(lf, lfp)
+
+
+def test_fibre_domains_are_balanced_and_cut_few_rows():
+    """The bisection behind ChainOptions.contact_domains on a ring of 40 fibres (rows only between
+    neighbours, 10 rows per neighbour pair) plus an isolated pair and obstacle rows: every domain gets
+    fibres, the row ends are balanced within one fibre's share, a ring is cut in exactly 2 places per
+    bisection level (so 2 domains cut 20 of the 410 fibre rows), and the result is deterministic."""
+    from headsim.solvers.chains import _fibre_domains
+
+    nf = 42
+    ring = np.arange(40)
+    fa = np.concatenate([np.repeat(ring, 10), np.repeat([40], 5), ring])
+    fb = np.concatenate([np.repeat((ring + 1) % 40, 10), np.repeat([41], 5), -np.ones(40, np.int64)])
+    for k in (1, 2, 3, 4):
+        part = _fibre_domains(fa, fb, nf, k)
+        assert part.shape == (nf,) and set(part) == set(range(k))
+        assert np.array_equal(part, _fibre_domains(fa, fb, nf, k))
+        m = fb >= 0
+        cross = (part[fa[m]] != part[fb[m]]).sum()
+        if k == 2:
+            assert cross == 20
+            ends = np.bincount(part[np.concatenate([fa, fb[m]])], minlength=2)
+            assert abs(ends[0] - ends[1]) <= 2 * 21
+    assert ChainOptions().contact_domains == 1
+    with pytest.raises(ParameterError):
+        ChainOptions(contact_domains=0)
+
+
 def test_options_are_validated():
     with pytest.raises(ParameterError):
         ChainOptions(restitution=1.5)
