@@ -48,23 +48,15 @@ import numpy as np
 
 
 def _residuals(a, u):
-    """(max bound violation m/s, max joint gap-rate residual m/s) of twists u for the captured arguments
-    (rows from the start only)."""
-    body, partner, normal, lever, plever, target = a[10:16]
-    jk, jl, jrk, jrl, jt = a[27:32]
-    n_rows = a[35]
+    """Largest normal-bound violation and joint residual (m/s) of one captured solve: the same measure as
+    ``bench_contact_convergence.py`` (imported from it, so that the two benchmarks report one metric)."""
+    import sys
+    from pathlib import Path
 
-    def vel(b, r):
-        return u[b, :3] + np.cross(u[b, 3:], r)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_contact_convergence import _residuals as residuals
 
-    rows = np.arange(n_rows)
-    ju = (normal[rows] * vel(body[rows], lever[rows])).sum(1)
-    pb = partner[rows] >= 0
-    ju[pb] -= (normal[rows][pb] * vel(partner[rows][pb], plever[rows][pb])).sum(1)
-    viol = float(np.maximum(target[rows] - ju, 0.0).max(initial=0.0))
-    vk = np.where((jk >= 0)[:, None], vel(np.maximum(jk, 0), jrk), 0.0)
-    jr = float(np.linalg.norm(jt + vel(jl, jrl) - vk, axis=1).max(initial=0.0))
-    return viol, jr
+    return residuals(a, u)
 
 
 def main():
