@@ -146,9 +146,10 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   Measured (``tests/mask/test_contact_check.py``): on the coarse problem at 15 N no loaded skin
   vertex lies farther than 0.1 x edge from the cushion and nothing interpenetrates (the planes fail
   both). Demo configuration (``python benchmarks/bench_mask.py --contact barrier --fits-only``,
-  2 cores, load 2-4 with other jobs): cold 15 N fit 24.2 s (95 Newton iterations; the planes: 2.4 s,
-  14), warm 14 N 5.7 s (20), search 10/20/30 N 79.1 s, all three leak; at 15 N area 13.2 cm2, peak
-  74 kPa, mean 13.2 kPa. (Before the Newton solve waited with the exact Hessian until CCD let a full
+  2 cores, idle, load 0.9): cold 15 N fit 20.3 s (98 Newton iterations; the planes: 2.4 s, 14), warm
+  14 N 6.3 s (26), search 95.6 s: 10/20/30 N for the strict answer (all leak), 8 more fits for the
+  acceptable-leak window (:mod:`headsim.mask.search`; 1-18.75 N); at 15 N area 13.4 cm2, peak
+  74 kPa, mean 13.1 kPa. (Load 2-4 with other jobs: 24.2 s, 95 iterations.) (Before the Newton solve waited with the exact Hessian until CCD let a full
   step through, :attr:`headsim.solvers.newton.NewtonOptions.exact_after_full_step`: 39.8 s and 141
   iterations at load 3-4; 126 iterations in a same-load comparison, single-threaded ipctk.) Where the
   time goes (cProfile, cold 15 N): SuperLU 59 % (0.13 s per factorisation of the 10.3k free
