@@ -165,7 +165,7 @@ def test_barrier_friction_counts_slip_from_where_a_vertex_first_touched():
     landed = v.copy()
     landed[3:, 2] -= 1.5 * dhat
     landed[3:, 0] += 0.2
-    bc.gradient(landed, u)  # an accepted Newton iterate: vertex 3 now within dhat of the plate
+    bc.hessian(landed, u)  # an accepted Newton iterate (its Hessian is asked for): vertex 3 within dhat
     moved = landed.copy()
     moved[3:, 0] += 0.1 * eps
     assert bc.update(moved, u)  # friction appears: the lagged data changed

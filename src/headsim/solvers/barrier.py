@@ -39,8 +39,8 @@ friction (Li et al. 2020 sec. 5), in its quasi-static form: the dissipation pote
 over the tangential collisions k built from the barrier's contact pairs at a lagged configuration
 (their normal force lambda_k from the barrier, their tangent basis T_k and closest-point weights
 Gamma_k frozen there), with x_a the anchors: each surface vertex's position at the first accepted
-Newton iterate at which it took part in a contact pair (within dhat) -- for the pairs already within
-dhat, the start -- so the tangential displacement is the two surfaces' relative slip since they
+Newton iterate (recorded when its Hessian is evaluated) at which it took part in a contact pair
+(within dhat) -- for the pairs already within dhat, the start -- so the tangential displacement is the two surfaces' relative slip since they
 touched (ipctk's FrictionPotential with the displacement x - x_a in place of a velocity times the
 time step; a vertex first seen touching at an update is anchored there). Its force is mu lambda_k
 f1(s) along the slip (Li et al. 2020 eq. 15): the Coulomb force mu lambda_k where the slip s exceeds
@@ -253,14 +253,13 @@ class BarrierContact:
         return f.reshape(-1, 3)
 
     def gradient(self, x, u):
-        if self.friction_potential is not None and self._first_touch is not None:
-            self._note_first_touch(x)
         return self._full_gradient(x).reshape(-1, 3), np.zeros(len(u))
 
     def _note_first_touch(self, x) -> None:
-        """Record where each surface vertex first takes part in a contact pair (within dhat). The Newton
-        solve asks for the gradient at its accepted iterates only, so this is the first accepted
-        iterate at which the vertex touches (to within one Newton step)."""
+        """Record where each surface vertex first takes part in a contact pair (within dhat). Called from
+        :meth:`hessian`, which the Newton solve evaluates at its accepted iterates only (the gradient is
+        also evaluated at trial steps the line search may reject), so this is the first accepted iterate
+        at which the vertex touches."""
         c, v = self.collisions(x)
         if not len(c):
             return
@@ -275,6 +274,8 @@ class BarrierContact:
     def hessian(self, x, u, project: bool = True):
         """Sparse (3n + r)^2 Hessian; per contact pair projected to PSD (eigenvalues clamped) when
         ``project``, else exact (quadratic convergence near the solution, possibly indefinite)."""
+        if self.friction_potential is not None and self._first_touch is not None:
+            self._note_first_touch(x)
         c, v = self.collisions(x)
         n_dof = 3 * self.n + len(u)
         if len(c) == 0:
