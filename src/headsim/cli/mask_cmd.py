@@ -101,7 +101,6 @@ def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes", rotat
 
     if rotation not in ("free", "held"):
         raise ParameterError(f"--rotation must be 'free' or 'held', got {rotation!r}")
-
     if mode not in ("nonlinear", "condensed"):
         raise ParameterError(f"--mode must be 'nonlinear' or 'condensed', got {mode!r}")
     if mode == "condensed" and friction > 0:
@@ -234,9 +233,7 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
                    f"(largest with more leak: {lo}; leak at {result.leak_force:.2f} N: {result.leak_fit.leak_flow_lpm:.2f} L/min; "
                    f"{result.leak_solves} extra fits) -> {out}/report.html")
         if result.leak_upper_force is not None:
-            typer.echo(f"  ... but only up to {result.leak_upper_force:.2f} N: too much leak again from "
-                       f"{result.leak_upper_bound:.2f} N (the leak rises with the strap force; status "
-                       f"{result.leak_status})")
+            typer.echo(f"  ... but only up to {result.leak_window_text()}")
     _echo_check(check, result.fit.force)
     return result
 

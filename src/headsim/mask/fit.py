@@ -149,9 +149,10 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   2 cores, idle, load 0.9): cold 15 N fit 20.3 s (98 Newton iterations; the planes: 2.4 s, 14), warm
   14 N 6.3 s (26), search 95.6 s: 10/20/30 N for the strict answer (all leak), 8 more fits for the
   acceptable-leak window (:mod:`headsim.mask.search`; 1-18.75 N); at 15 N area 13.4 cm2, peak
-  74 kPa, mean 13.1 kPa. (Load 2-4 with other jobs: 24.2 s, 95 iterations.) (Before the Newton solve waited with the exact Hessian until CCD let a full
-  step through, :attr:`headsim.solvers.newton.NewtonOptions.exact_after_full_step`: 39.8 s and 141
-  iterations at load 3-4; 126 iterations in a same-load comparison, single-threaded ipctk.) Where the
+  74 kPa, mean 13.1 kPa (load 2-4 with other jobs: 24.2 s, 95 iterations). Before the Newton solve
+  waited with the exact Hessian until CCD let a full step through
+  (:attr:`headsim.solvers.newton.NewtonOptions.exact_after_full_step`): 39.8 s and 141 iterations at
+  load 3-4; 126 iterations in a same-load comparison, single-threaded ipctk. Where the
   time goes (cProfile, cold 15 N): SuperLU 59 % (0.13 s per factorisation of the 10.3k free
   unknowns; the cushion's ring of 4 mm tets is a cyclic chain of ~100-unknown cross-sections, 1.95 M
   of the factor's 2.6 M entries; a METIS nested-dissection order gives the same fill, MKL Pardiso
@@ -1013,21 +1014,19 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
     e_shell = max(p.mask.material.youngs_modulus, p.options.tissue_modulus)
     k_att = 1e4 * e_shell * 3e-3  # N/m per shell vertex (>> cushion stiffness; exact balance anyway)
     attach = ShellAttachment(p.shell_vertices, rest_shell, k_att, shell_modes(p, rest_shell))
+    mu = float(p.options.friction)
+    slip = FRICTION_SLIP_FRACTION * p.skin_edge if mu > 0 else None
     if p.options.contact == "barrier":
         from headsim.solvers.barrier import BarrierContact
 
-        mu = float(p.options.friction)
         contact = BarrierContact(p.model.rest_positions, p.contact_surfaces, p.options.contact_layer,
-                                 p.barrier_stiffness, friction=mu,
-                                 friction_slip=FRICTION_SLIP_FRACTION * p.skin_edge if mu > 0 else None)
-        contact.tolerance = tolerance
-        return contact, attach
-    mu = float(p.options.friction)
-    contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty, friction=mu,
-                           friction_slip=FRICTION_SLIP_FRACTION * p.skin_edge if mu > 0 else None)
-    contact.axis_of_approach = p.approach
-    contact._tree = None
-    contact.tolerance = tolerance
+                                 p.barrier_stiffness, friction=mu, friction_slip=slip)
+    else:
+        contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty, friction=mu,
+                               friction_slip=slip)
+        contact.axis_of_approach = p.approach
+        contact._tree = None
+    contact.tolerance = tolerance  # N: the outer loop's friction fixed point (both models)
     return contact, attach
 
 

@@ -102,10 +102,7 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
                          f"{search.leak_force:.2f} N (largest with more leak: {lo}; leak at that force "
                          f"{search.leak_fit.leak_flow_lpm:.2f} L/min; {search.leak_solves} extra fit(s))"))
             if search.leak_upper_force is not None:
-                rows.append((f"leak <= {thr:g} L/min up to",
-                             f"{search.leak_upper_force:.2f} N: too much leak again from "
-                             f"{search.leak_upper_bound:.2f} N (the leak rises with the strap force; status "
-                             f"{search.leak_status})"))
+                rows.append((f"leak <= {thr:g} L/min up to", search.leak_window_text()))
         rows.append(("fits in the search", f"{search.n_solves} ({search.seconds:.1f} s)"))
     rows += [
         ("strap force", f"{fit.force:.2f} N"),

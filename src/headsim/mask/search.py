@@ -149,6 +149,13 @@ class SearchResult:
     leak_upper_force: float | None = None
     leak_upper_bound: float | None = None
 
+    def leak_window_text(self) -> str | None:
+        """The window's top in words ("18.75 N: too much leak again from 19.38 N ..."), None without one."""
+        if self.leak_upper_force is None:
+            return None
+        return (f"{self.leak_upper_force:.2f} N: too much leak again from {self.leak_upper_bound:.2f} N (the leak "
+                f"rises with the strap force; status {self.leak_status})")
+
     def as_dict(self) -> dict:
         leak = getattr(self.fit, "leak", None)
         return {

@@ -40,12 +40,13 @@ over the tangential collisions k built from the barrier's contact pairs at a lag
 (their normal force lambda_k from the barrier, their tangent basis T_k and closest-point weights
 Gamma_k frozen there), with x_a the anchors: each surface vertex's position at the first accepted
 Newton iterate (recorded when its Hessian is evaluated) at which it took part in a contact pair
-(within dhat) -- for the pairs already within dhat, the start -- so the tangential displacement is the two surfaces' relative slip since they
-touched (ipctk's FrictionPotential with the displacement x - x_a in place of a velocity times the
-time step; a vertex first seen touching at an update is anchored there). Its force is mu lambda_k
-f1(s) along the slip (Li et al. 2020 eq. 15): the Coulomb force mu lambda_k where the slip s exceeds
-eps (sliding), a stiff, smooth rise from 0 below it (sticking): the regularised Coulomb law. The lagged lambda, T, Gamma are refreshed at the
-current configuration by :meth:`BarrierContact.update` (the outer loop of
+(within dhat) -- for the pairs already within dhat, the start -- so the tangential displacement is
+the two surfaces' relative slip since they touched (ipctk's FrictionPotential with the displacement
+x - x_a in place of a velocity times the time step; a vertex first seen touching at an update is
+anchored there). Its force is mu lambda_k f1(s) along the slip (Li et al. 2020 eq. 15): the Coulomb
+force mu lambda_k where the slip s exceeds eps (sliding), a stiff, smooth rise from 0 below it
+(sticking): the regularised Coulomb law. The lagged lambda, T, Gamma are refreshed at the current
+configuration by :meth:`BarrierContact.update` (the outer loop of
 :func:`headsim.solvers.solve_quasi_static`) until the friction forces move by less than
 ``tolerance`` (N). Anchoring every vertex at the solve's start instead (one quasi-static load step)
 counts the approach of pairs that touch later as slip: where such a pair's partner switches between
@@ -187,11 +188,15 @@ class BarrierContact:
         v = self._surface(x)
         c.build(self.mesh, v, float(distance))
         out = np.zeros(self.n, dtype=bool)
-        edges, faces = self.mesh.edges, self.mesh.faces
-        local = [i for k in range(len(c)) for i in c[k].vertex_ids(edges, faces) if i >= 0]
-        if local:
-            out[self.ids[np.unique(np.asarray(local, dtype=np.int64))]] = True
+        out[self.ids[self._collision_vertices(c)]] = True
         return out
+
+    def _collision_vertices(self, collisions) -> np.ndarray:
+        """(m,) int64 sorted local surface-vertex ids of the points, edges and triangles of ipctk
+        normal or tangential ``collisions``."""
+        edges, faces = self.mesh.edges, self.mesh.faces
+        return np.unique(np.asarray([i for k in range(len(collisions))
+                                     for i in collisions[k].vertex_ids(edges, faces) if i >= 0], dtype=np.int64))
 
     def intersecting(self, x: np.ndarray) -> bool:
         """True when two contact components cross at x."""
@@ -230,7 +235,9 @@ class BarrierContact:
         return np.asfortranarray(self._surface(x) - self._anchor)
 
     def _friction_energy(self, x) -> float:
-        return float(self.friction_potential(self._tangential, self.mesh, self._slip(x))) if self._has_friction() else 0.0
+        if not self._has_friction():
+            return 0.0
+        return float(self.friction_potential(self._tangential, self.mesh, self._slip(x)))
 
     def _lag_friction(self, x) -> None:
         c, v = self.collisions(x)
@@ -261,10 +268,7 @@ class BarrierContact:
         also evaluated at trial steps the line search may reject), so this is the first accepted iterate
         at which the vertex touches."""
         c, v = self.collisions(x)
-        if not len(c):
-            return
-        edges, faces = self.mesh.edges, self.mesh.faces
-        ids = np.unique([i for k in range(len(c)) for i in c[k].vertex_ids(edges, faces) if i >= 0])
+        ids = self._collision_vertices(c)
         new = ids[np.isnan(self._first_touch[ids, 0])]
         self._first_touch[new] = v[new]
 
