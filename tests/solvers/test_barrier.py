@@ -4,6 +4,7 @@ and a force-driven solve that must stop at the barrier without the surfaces cros
 import numpy as np
 import pytest
 
+from headsim.errors import ParameterError
 from headsim.solvers.barrier import BarrierContact, barrier_distance, barrier_pressure
 
 
@@ -174,3 +175,23 @@ def test_barrier_friction_counts_slip_from_where_a_vertex_first_touched():
     y = 0.1 * eps
     assert f[3, 0] == pytest.approx(-mu * lam * (2 * y / eps - (y / eps) ** 2), rel=1e-6)
     assert f[3, 1] == pytest.approx(0.0, abs=1e-12 * lam)
+
+
+def test_friction_lag_is_relaxed_when_the_outer_residual_stops_falling():
+    """friction_lag="adaptive": the lagged data are taken at the last solution while the outer loop's
+    residual falls; where it does not (a 2-cycle of the plain lagged iteration), halfway between the
+    last lag configuration and the solution, then a quarter of the way, ... ("plain": always at the
+    solution)."""
+    v, tri = _vertex_over_plate(0.5e-3)
+    x0 = v.copy()
+    steps = [x0 + [0, 0, -5e-5 * k] for k in range(1, 6)]
+    for lag, expected in (("adaptive", [1.0, 1.0, 0.5, 0.25, 0.25]), ("plain", [1.0] * 5)):
+        bc = BarrierContact(v, tri, 1e-3, 1.0, friction=0.5, friction_slip=1e-6, friction_lag=lag)
+        bc.start(x0, np.zeros(0))
+        at_prev = x0
+        for x, residual, omega in zip(steps, [1.0, 0.5, 0.6, 0.7, 0.1], expected):
+            at = bc._relaxed_lag_configuration(x, residual)
+            assert np.allclose(at, at_prev + omega * (x - at_prev), rtol=0, atol=1e-15)
+            at_prev = at
+    with pytest.raises(ParameterError, match="friction_lag"):
+        BarrierContact(v, tri, 1e-3, 1.0, friction=0.5, friction_slip=1e-6, friction_lag="aitken")

@@ -33,26 +33,36 @@ energy is one function of the positions, so Newton's method converges on it dire
 **Friction** (``friction`` = mu > 0, ``friction_slip`` = eps, m): IPC's lagged smoothed Coulomb
 friction (Li et al. 2020 sec. 5), in its quasi-static form: the dissipation potential
 
-    D(x) = sum_k mu lambda_k f0(|T_k^T Gamma_k (x - x_a)|),  f0'(s) = f1(s) = 2 s / eps - s^2 / eps^2
+    D(x) = sum_k w_k mu lambda_k f0(|P_k Gamma_k (x - x_a)|),  f0'(s) = f1(s) = 2 s / eps - s^2 / eps^2
                                                                    (s < eps), 1 (s >= eps)
 
 over the tangential collisions k built from the barrier's contact pairs at a lagged configuration
-(their normal force lambda_k from the barrier, their tangent basis T_k and closest-point weights
-Gamma_k frozen there), with x_a the anchors: each surface vertex's position at the first accepted
-Newton iterate (recorded when its Hessian is evaluated) at which it took part in a contact pair
-(within dhat) -- for the pairs already within dhat, the start -- so the tangential displacement is
-the two surfaces' relative slip since they touched (ipctk's FrictionPotential with the displacement
-x - x_a in place of a velocity times the time step; a vertex first seen touching at an update is
-anchored there). Its force is mu lambda_k f1(s) along the slip (Li et al. 2020 eq. 15): the Coulomb
-force mu lambda_k where the slip s exceeds eps (sliding), a stiff, smooth rise from 0 below it
-(sticking): the regularised Coulomb law. The lagged lambda, T, Gamma are refreshed at the current
-configuration by :meth:`BarrierContact.update` (the outer loop of
-:func:`headsim.solvers.solve_quasi_static`) until the friction forces move by less than
-``tolerance`` (N). Anchoring every vertex at the solve's start instead (one quasi-static load step)
-counts the approach of pairs that touch later as slip: where such a pair's partner switches between
-two faces of a kinked surface the approach projects onto their tangent planes in opposite directions
-and the outer loop alternated between two states (the mask fit on the bundled face,
-:mod:`headsim.mask.fit`, "Barrier contact").
+(their normal force lambda_k from the barrier, closest-point weights Gamma_k and tangent-plane
+projection P_k frozen there; :class:`headsim.solvers.barrier_friction.LaggedFriction`), with x_a the
+anchors: each surface vertex's position at the first accepted Newton iterate (recorded when its
+Hessian is evaluated) at which it took part in a contact pair (within dhat) -- for the pairs already
+within dhat, the start -- so the tangential displacement is the two surfaces' relative slip since
+they touched (a vertex first seen touching at an update is anchored there). Its force is
+mu lambda_k f1(s) along the slip (Li et al. 2020 eq. 15): the Coulomb force mu lambda_k where the slip
+s exceeds eps (sliding), a stiff, smooth rise from 0 below it (sticking). The tangent planes are
+normal to a smoothed contact normal (``friction_normals="smooth"``: the vertex normals of the
+surface a point projects on, interpolated at its projection; for an edge-edge pair the mean of both
+surfaces'): ipctk's own plane of an edge-edge pair is spanned by edge a and (e_a x e_b) x e_a,
+arbitrary for the nearly parallel edges of a cushion lying on skin (tests/solvers/
+test_barrier_friction.py: up to 65 deg off between two sheets 1e-3 rad apart).
+
+The lagged data are refreshed by :meth:`BarrierContact.update` (the outer loop of
+:func:`headsim.solvers.solve_quasi_static`) until the friction forces at the solution move by less
+than ``tolerance`` (N) when taken there. The plain lagged iteration (take them at the last solution)
+can end in a 2-cycle: on the mask fit (demo, mu = 0.5, 8 N) cushion vertices over a skin crease
+alternated by 270 um and their friction forces by 0.02 N for 30 updates, with ipctk's and with the
+smoothed planes alike, i.e. the lagged map is continuous there but its slope is beyond -1. Relaxation
+turns that into a contraction: ``friction_lag="adaptive"`` takes the data at
+xbar_k = xbar_k-1 + omega (x_k - xbar_k-1) and halves omega (from 1) whenever the fixed-point residual
+did not fall (:meth:`BarrierContact._relaxed_lag_configuration`). Anchoring every vertex at the
+solve's start instead (one quasi-static load step) counts the approach of pairs that touch later as
+slip, and the outer loop alternated at 2.5 and 15 N as well (:mod:`headsim.mask.fit`, "Barrier
+contact").
 """
 
 from __future__ import annotations
@@ -61,6 +71,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from headsim.errors import ParameterError
+from headsim.solvers.barrier_friction import LaggedFriction
 
 
 def barrier_pressure(distance, dhat: float, stiffness: float) -> np.ndarray:
@@ -87,6 +98,10 @@ def barrier_distance(pressure: float, dhat: float, stiffness: float) -> float:
     return 0.5 * (lo + hi)
 
 
+#: smallest relaxation factor of the lagged friction's outer iteration (BarrierContact._relaxed_lag_configuration)
+FRICTION_OMEGA_MIN = 1.0 / 16
+
+
 class BarrierContact:
     """IPC barrier contact among the surface components of one model (module doc).
 
@@ -98,6 +113,9 @@ class BarrierContact:
     stiffness : kappa, Pa (the contact pressure scale, module doc)
     friction : Coulomb coefficient mu (0: frictionless); friction_slip : eps, m, the slip below which a
         contact sticks (the regularisation; needed when friction > 0)
+    friction_normals : "smooth" (default) or "pair" (ipctk's tangent planes), module doc "Friction"
+    friction_lag : "adaptive" (default: the outer iteration relaxed when it stops contracting) or
+        "plain" (module doc)
     threads : ipctk's thread count (a process-wide setting of the IPC Toolkit, set here). 1, the
         default, makes a solve reproducible: ipctk's parallel broad phase and CCD reduce in a
         scheduling-dependent order, and the mask fit's Newton path is sensitive to the last bits
@@ -111,7 +129,8 @@ class BarrierContact:
     """
 
     def __init__(self, rest_positions: np.ndarray, triangles: np.ndarray, dhat: float, stiffness: float,
-                 threads: int | None = 1, friction: float = 0.0, friction_slip: float | None = None):
+                 threads: int | None = 1, friction: float = 0.0, friction_slip: float | None = None,
+                 friction_normals: str = "smooth", friction_lag: str = "adaptive"):
         import ipctk
 
         if threads is not None:
@@ -131,7 +150,13 @@ class BarrierContact:
         self.eps = float(friction_slip) if friction > 0 else None
         #: N: the outer loop ends when an update moves no friction force by more than this
         self.tolerance = 1e-9
-        self._tangential = None  # lagged ipctk TangentialCollisions
+        self._tangential = None  # lagged friction (barrier_friction.LaggedFriction)
+        if friction_normals not in ("smooth", "pair"):
+            raise ParameterError(f"friction_normals must be 'smooth' or 'pair', got {friction_normals!r}")
+        self.friction_normals = friction_normals
+        if friction_lag not in ("adaptive", "plain"):
+            raise ParameterError(f"friction_lag must be 'adaptive' or 'plain', got {friction_lag!r}")
+        self.friction_lag = friction_lag
         self._anchor = None      # (k, 3) per surface vertex: the slip's origin (where it first touched)
         self._anchored = None
         self._first_touch = None
@@ -146,7 +171,7 @@ class BarrierContact:
         self.mesh.can_collide = ipctk.make_connected_components_filter(faces)
         self.areas = np.asarray(self.mesh.vertex_areas, dtype=np.float64).copy()  # m^2 per contact vertex
         self.potential = ipctk.BarrierPotential(ipctk.NormalizedClampedLogBarrier(), self.dhat, self.stiffness, True)
-        self.friction_potential = ipctk.FrictionPotential(self.eps) if self.mu > 0 else None
+        self._frictional = self.mu > 0
         dof = (3 * self.ids[:, None] + np.arange(3)).ravel()
         self._dof = dof
         self._key = None
@@ -223,12 +248,12 @@ class BarrierContact:
     def _full_gradient(self, x) -> np.ndarray:
         g = self._normal_gradient(x)
         if self._has_friction():
-            g[self._dof] += self.friction_potential.gradient(self._tangential, self.mesh, self._slip(x))
+            g[self._dof] += self._tangential.gradient(self._slip(x)).ravel()
         return g
 
     # -- lagged friction (module doc) --------------------------------------------------------------
     def _has_friction(self) -> bool:
-        return self.friction_potential is not None and self._tangential is not None and len(self._tangential) > 0
+        return self._frictional and self._tangential is not None and len(self._tangential) > 0
 
     def _slip(self, x) -> np.ndarray:
         """(k, 3) m: displacement of the contact surfaces since the anchor (ipctk's "velocities")."""
@@ -237,14 +262,14 @@ class BarrierContact:
     def _friction_energy(self, x) -> float:
         if not self._has_friction():
             return 0.0
-        return float(self.friction_potential(self._tangential, self.mesh, self._slip(x)))
+        return self._tangential.energy(self._slip(x))
 
-    def _lag_friction(self, x) -> None:
-        c, v = self.collisions(x)
+    def _lag_friction(self, x, at=None) -> None:
+        c, v = self.collisions(x if at is None else at)
         t = self._ipc.TangentialCollisions()
         if len(c):
             t.build(self.mesh, v, c, self.potential, self.mu)
-        self._tangential = t
+        self._tangential = LaggedFriction(t, self.mesh, v, self.mu, self.eps, self.friction_normals)
         # the slip of a vertex counts from where it first touched (module doc); vertices that touch now
         # without a recorded first touch are anchored here
         self._note_first_touch(x)
@@ -256,7 +281,7 @@ class BarrierContact:
         """(n, 3) N, the friction force on every model vertex (zero without friction)."""
         f = np.zeros(3 * self.n)
         if self._has_friction():
-            f[self._dof] = -self.friction_potential.gradient(self._tangential, self.mesh, self._slip(x))
+            f[self._dof] = -self._tangential.gradient(self._slip(x)).ravel()
         return f.reshape(-1, 3)
 
     def gradient(self, x, u):
@@ -278,7 +303,7 @@ class BarrierContact:
     def hessian(self, x, u, project: bool = True):
         """Sparse (3n + r)^2 Hessian; per contact pair projected to PSD (eigenvalues clamped) when
         ``project``, else exact (quadratic convergence near the solution, possibly indefinite)."""
-        if self.friction_potential is not None and self._first_touch is not None:
+        if self._frictional and self._first_touch is not None:
             self._note_first_touch(x)
         c, v = self.collisions(x)
         n_dof = 3 * self.n + len(u)
@@ -287,7 +312,7 @@ class BarrierContact:
         method = self._ipc.PSDProjectionMethod.CLAMP if project else self._ipc.PSDProjectionMethod.NONE
         h = self.potential.hessian(c, self.mesh, v, method)
         if self._has_friction():
-            h = h + self.friction_potential.hessian(self._tangential, self.mesh, self._slip(x), method)
+            h = h + self._tangential.hessian(self._slip(x), project=project)
         h = h.tocoo()
         return sp.csr_matrix((h.data, (self._dof[h.row], self._dof[h.col])), shape=(n_dof, n_dof))
 
@@ -296,23 +321,54 @@ class BarrierContact:
         return float(self._ipc.compute_collision_free_stepsize(self.mesh, self._surface(x0), self._surface(x1)))
 
     def update(self, x, u) -> bool:
-        """Frictionless: nothing lagged (module doc). With friction: the tangential collisions, their
-        normal forces and bases taken at x; True when that moves a friction force by more than
-        ``tolerance`` (N)."""
-        if self.friction_potential is None:
+        """Frictionless: nothing lagged (module doc). With friction: one step of the outer fixed-point
+        iteration on the lagged friction. Its residual is the largest change (N) of a friction force
+        at x between the operator the last solve used and the one taken at x itself; at most
+        ``tolerance`` ends the loop (False) with the former kept, so that x is an exact equilibrium of
+        the energy it reports. Otherwise the next operator is taken at the relaxed configuration of
+        :meth:`_relaxed_lag_configuration` (True)."""
+        if not self._frictional:
             return False
+        used = self._tangential
         before = self.friction_forces(x)
         self._lag_friction(x)
-        return bool(np.max(np.abs(self.friction_forces(x) - before), initial=0.0) > self.tolerance)
+        residual = float(np.max(np.abs(self.friction_forces(x) - before), initial=0.0))
+        if residual <= self.tolerance:
+            self._tangential = used
+            return False
+        at = self._relaxed_lag_configuration(x, residual)
+        if at is not x:
+            self._lag_friction(x, at)
+        return True
+
+    def _relaxed_lag_configuration(self, x, residual: float):
+        """Where the next lagged friction operator is taken: xbar_k = xbar_k-1 + omega (x_k - xbar_k-1),
+        x_k the solve's result under the operator taken at xbar_k-1 (module doc, "Friction").
+        ``friction_lag="adaptive"``: omega starts at 1 (the plain lagged iteration of Li et al. 2020)
+        and is halved, down to FRICTION_OMEGA_MIN, at every update whose fixed-point residual (N) is not
+        smaller than the one before -- the damping of a fixed-point iteration that stopped contracting
+        (a 2-cycle of the plain iteration: the map's slope beyond -1, which relaxation by omega < 1
+        turns into a contraction); "plain": omega = 1 always."""
+        if self.friction_lag == "adaptive" and self._lag_residual is not None and residual >= self._lag_residual:
+            self._omega = max(0.5 * self._omega, FRICTION_OMEGA_MIN)
+        self._lag_residual = residual
+        at = x if self._omega == 1.0 else self._lag_at + self._omega * (np.asarray(x, dtype=np.float64) - self._lag_at)
+        if at is not x and self.intersecting(at):
+            at = x  # the blend of two admissible configurations crosses: take the operator at x
+        self._lag_at = np.array(at, dtype=np.float64)
+        return at
 
     def start(self, x, u) -> None:
         if self.intersecting(x):
             raise ParameterError("barrier contact: the surfaces already intersect at the start")
-        if self.friction_potential is not None:
+        if self._frictional:
             self._anchor = np.asfortranarray(self._surface(x).copy())
             self._anchored = np.zeros(len(self.ids), dtype=bool)
             self._first_touch = np.full((len(self.ids), 3), np.nan)
             self._lag_friction(x)
+            self._lag_at = np.array(x, dtype=np.float64)
+            self._lag_residual = None
+            self._omega = 1.0
 
     def vertex_forces(self, x, u) -> np.ndarray:
         """(n, 3) N, contact force on every model vertex (minus the energy gradient)."""

@@ -1,0 +1,197 @@
+"""Lagged smoothed Coulomb friction over the barrier's contact pairs, with a smoothed contact normal.
+
+IPC's friction (Li et al., "Incremental Potential Contact", ACM TOG 39(4) 2020, sec. 5) is a
+dissipation potential over the *tangential collisions* k built from the barrier's contact pairs at a
+lagged configuration:
+
+    D(u) = sum_k w_k mu lambda_k f0(|P_k r_k(u)|),   r_k = sum_i gamma_ki u_i     (Li et al. eq. 14)
+
+with u the surface vertices' displacement (here: the slip since they first touched, see
+:mod:`headsim.solvers.barrier`), gamma_ki the closest-point coefficients of the pair's stencil
+(+1 for a point, -b_i for the barycentric weights of the triangle it faces; edge parameters for an
+edge-edge pair), w_k the pair's area weight, lambda_k its lagged normal force, P_k the projection on
+the pair's tangent plane and
+
+    f0(s) = -s^3 / (3 eps^2) + s^2 / eps + eps / 3  (s < eps),  s  (s >= eps),
+    f1(s) = f0'(s) = 2 s / eps - s^2 / eps^2        (s < eps),  1  (s >= eps)          (Li et al. eq. 15)
+
+so that the friction force of a pair is mu lambda_k f1(s) along the slip: the Coulomb force where
+the tangential slip s exceeds eps, a smooth rise from zero below it.
+
+**The contact normal.** ipctk takes P_k from the pair's own geometry: the plane of the triangle of a
+point-triangle pair, the plane of the two edges of an edge-edge pair. Where a point sits over an edge
+between two faces of a creased surface, its pair switches from one face to the other as it moves, and
+with it the tangent plane, by the crease angle. Lagged, that makes the friction operator a
+discontinuous function of the configuration at which it is taken, and the outer fixed-point loop can
+alternate between two states (measured on the mask fit: a cushion vertex over a skin crease moved
+270 um between consecutive updates, indefinitely). ``normals="smooth"`` (the default) therefore takes
+the tangent plane normal to a *smoothed* contact normal, as smoothing methods for contact on faceted
+surfaces do (Puso & Laursen, "A 3D contact smoothing method using Gregory patches", IJNME 54 (2002);
+Wriggers, "Computational Contact Mechanics", 2nd ed. 2006, ch. 9): each side's normal is the
+interpolation, with the pair's closest-point weights |gamma_ki|, of that side's area-weighted vertex
+normals. A point's pair (point-triangle, point-edge) takes the normal of the side the point projects
+on, as node-to-surface smoothing does (the point may be a corner of its surface, e.g. the tip of a
+cone, whose vertex normal says nothing about the plane it slides in); an edge-edge (or point-point)
+pair, which has no such side, the mean of the two sides' normals (the second side's turned to face
+the first's). It is continuous where a pair moves across an edge of either surface. On a flat surface
+it is the face normal, i.e. ipctk's. ``normals="pair"`` keeps ipctk's planes (for comparison and the
+tests that check this implementation against ipctk's FrictionPotential).
+
+The potential depends on the slip only through |P_k r_k|, so no tangent basis is needed. Its Hessian
+in the tangential slip y = P r is f1(s)/s P + (f1'(s) - f1(s)/s) y y^T / s^2, positive semi-definite
+for IPC's f0 (eigenvalues f1' >= 0 along y and f1/s > 0 across). The pair's weight w_k can be
+negative: the "improved max" collision set (Li, Kaufman & Jiang 2023) subtracts the pairs that two
+neighbouring pairs count twice (an edge-vertex pair between two point-triangle pairs). The projected
+Hessian (``project=True``) leaves those out, which is what clamping each pair's eigenvalues at zero
+does (ipctk's ``PSDProjectionMethod.CLAMP``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from headsim.errors import ParameterError
+
+_KINDS = ("vv_collisions", "ev_collisions", "ee_collisions", "fv_collisions")
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n, 3) unit area-weighted vertex normals of a triangle surface (zero rows for vertices without
+    a face). vertices : (n, 3) m; faces : (t, 3) int."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 x area x unit normal
+    n = np.zeros_like(v)
+    for c in range(3):
+        np.add.at(n, f[:, c], fn)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+class LaggedFriction:
+    """The friction potential D(u) of the module doc over ipctk ``TangentialCollisions`` taken at the
+    surface positions ``positions`` (k, 3) m of ``mesh`` (an ipctk CollisionMesh).
+
+    mu : Coulomb coefficient; eps : m, the slip below which a pair sticks; normals : "smooth" (module
+    doc) or "pair" (ipctk's tangent planes). :meth:`energy`, :meth:`gradient` and :meth:`hessian` take
+    the surface displacement u (k, 3) m; the gradient is (k, 3) N, the Hessian a (3k, 3k) sparse
+    matrix in N/m over the surface dofs (x, y, z per vertex).
+    """
+
+    def __init__(self, collisions, mesh, positions: np.ndarray, mu: float, eps: float, normals: str = "smooth"):
+        if normals not in ("smooth", "pair"):
+            raise ParameterError(f"friction normals must be 'smooth' or 'pair', got {normals!r}")
+        if not (mu >= 0 and eps > 0):
+            raise ParameterError(f"friction needs mu >= 0 and eps > 0, got {mu}, {eps}")
+        self.eps = float(eps)
+        self.n_vertices = len(positions)
+        edges, faces = mesh.edges, mesh.faces
+        stencils, gammas, coeff, pair_normal, point_pair = [], [], [], [], []
+        for kind in _KINDS:
+            for col in getattr(collisions, kind):
+                point_pair.append(kind in ("ev_collisions", "fv_collisions"))
+                ids = np.full(4, -1, dtype=np.int64)
+                vid = [int(i) for i in col.vertex_ids(edges, faces)]
+                ids[: len(vid)] = vid
+                m = np.asarray(col.relative_velocity_jacobian())  # (3, 3 n_stencil): blocks gamma_i I_3
+                g = np.zeros(4)
+                g[: m.shape[1] // 3] = m[0, 0::3]
+                basis = np.asarray(col.tangent_basis)  # (3, 2)
+                stencils.append(ids)
+                gammas.append(g)
+                coeff.append(col.weight * col.mu_k * col.normal_force_magnitude)
+                pair_normal.append(np.cross(basis[:, 0], basis[:, 1]))
+        k = len(stencils)
+        self.ids = np.array(stencils, dtype=np.int64).reshape(k, 4)
+        self.gamma = np.array(gammas, dtype=np.float64).reshape(k, 4)
+        self.gamma[self.ids < 0] = 0.0
+        self.ids[self.ids < 0] = 0
+        self.coeff = np.array(coeff, dtype=np.float64).reshape(k)  # w mu lambda, N
+        self.point_pair = np.array(point_pair, dtype=bool).reshape(k)  # point-triangle / point-edge
+        own = np.array(pair_normal, dtype=np.float64).reshape(k, 3)
+        own /= np.maximum(np.linalg.norm(own, axis=1, keepdims=True), 1e-300)
+        if normals == "smooth" and k:
+            n = self._smoothed_normals(np.asarray(positions, dtype=np.float64), np.asarray(faces), own)
+        else:
+            n = own
+        self.normals = n
+        self.projector = np.eye(3)[None] - n[:, :, None] * n[:, None, :]  # (k, 3, 3)
+        # sparsity of the Hessian: 4 x 4 blocks of 3 x 3 per pair
+        dof = 3 * self.ids[:, :, None] + np.arange(3)  # (k, 4, 3)
+        flat = dof.reshape(k, 12)
+        self._rows = np.repeat(flat, 12, axis=1).ravel()
+        self._cols = np.tile(flat, (1, 12)).ravel()
+
+    def __len__(self) -> int:
+        return len(self.coeff)
+
+    def _smoothed_normals(self, x, faces, own) -> np.ndarray:
+        """(k, 3) smoothed contact normals (module doc): for a point-triangle or point-edge pair the
+        triangle's or edge's vertex normals interpolated at the point's projection; for an edge-edge or
+        point-point pair the mean of the two sides' (the second side's turned to face the first's,
+        whatever the orientation of the surfaces); the pair's own normal ``own`` where that mean is
+        ill-defined (two sides at right angles) or a side has no normal."""
+        vn = vertex_normals(x, faces)[self.ids]  # (k, 4, 3)
+        side = []
+        for w in (np.where(self.gamma > 0, self.gamma, 0.0), np.where(self.gamma < 0, -self.gamma, 0.0)):
+            s = np.einsum("ki,kij->kj", w, vn)
+            side.append(s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300))
+        cos = np.einsum("kj,kj->k", side[0], side[1])
+        n = side[0] + np.sign(cos)[:, None] * side[1]
+        ok = np.abs(cos) > 0.1
+        # a point's pair: the side it projects on (stencil slots 1.., ipctk puts the point first)
+        master = np.where((self.gamma[:, 0] > 0)[:, None], side[1], side[0])
+        n = np.where(self.point_pair[:, None], master, n)
+        ok = np.where(self.point_pair, np.linalg.norm(master, axis=1) > 0.5, ok)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(ok[:, None], n / np.maximum(length, 1e-300), own)
+
+    # -- the slip of each pair -------------------------------------------------------------------
+    def _tangential_slip(self, u):
+        r = np.einsum("ki,kij->kj", self.gamma, np.asarray(u, dtype=np.float64)[self.ids])  # (k, 3)
+        y = np.einsum("kab,kb->ka", self.projector, r)
+        return y, np.linalg.norm(y, axis=1)
+
+    def _f1_over_s(self, s):
+        e = self.eps
+        return np.where(s < e, 2.0 / e - s / (e * e), 1.0 / np.maximum(s, 1e-300))
+
+    def energy(self, u) -> float:
+        """D(u), J."""
+        if not len(self):
+            return 0.0
+        _, s = self._tangential_slip(u)
+        e = self.eps
+        f0 = np.where(s < e, -s**3 / (3 * e * e) + s * s / e + e / 3.0, s)
+        return float(self.coeff @ f0)
+
+    def gradient(self, u) -> np.ndarray:
+        """dD/du, (k_vertices, 3) N."""
+        g = np.zeros((self.n_vertices, 3))
+        if not len(self):
+            return g
+        y, s = self._tangential_slip(u)
+        t = (self.coeff * self._f1_over_s(s))[:, None] * y  # (k, 3): the pair's friction force magnitude along y
+        np.add.at(g, self.ids, self.gamma[:, :, None] * t[:, None, :])
+        return g
+
+    def hessian(self, u, project: bool = False) -> sp.csr_matrix:
+        """d2D/du2 at fixed lagged data, (3k, 3k) sparse. ``project``: positive semi-definite, the
+        pairs of negative weight left out (module doc)."""
+        size = 3 * self.n_vertices
+        if not len(self):
+            return sp.csr_matrix((size, size))
+        y, s = self._tangential_slip(u)
+        e = self.eps
+        a = self._f1_over_s(s)
+        # (f1' - f1/s) / s^2 = -1 / (eps^2 s) below eps, -1 / s^3 above (its y y^T term vanishes at s = 0)
+        b = np.zeros_like(s)
+        small = (s > 0) & (s < e)
+        b[small] = -1.0 / (e * e * s[small])
+        b[s >= e] = -1.0 / s[s >= e] ** 3
+        h3 = a[:, None, None] * self.projector + b[:, None, None] * y[:, :, None] * y[:, None, :]
+        h3 *= (np.maximum(self.coeff, 0.0) if project else self.coeff)[:, None, None]
+        blocks = np.einsum("ki,kj,kab->kiajb", self.gamma, self.gamma, h3)  # (k, 4, 3, 4, 3)
+        h = sp.coo_matrix((blocks.reshape(-1), (self._rows, self._cols)), shape=(size, size))
+        return h.tocsr()
