@@ -152,3 +152,46 @@ def test_barrier_with_friction_reaches_the_contact_term():
     contact, _ = _contact_terms(p, p.model.rest_positions[p.shell_vertices], UPDATE_TOL * 15.0)
     assert contact.mu == 0.5 and contact.eps == pytest.approx(FRICTION_SLIP_FRACTION * p.skin_edge)
     assert contact.tolerance == pytest.approx(UPDATE_TOL * 15.0)
+
+
+def test_barrier_friction_converges_where_the_plain_lagged_iteration_cycles(monkeypatch):
+    """Coarse problem, mu = 0.5, 10 N: the plain lagged friction iteration (take the lagged normal
+    forces and tangent planes at the last solution) does not settle within the fit's 30 outer
+    updates; the relaxed one (BarrierContact friction_lag="adaptive", the default) converges, and its
+    fit is an equilibrium: the contact force balances the strap force, and the friction forces on the
+    skin stay inside Coulomb's cone of the barrier's normal forces in total."""
+    from headsim.errors import ConvergenceError
+    from headsim.mask.fit import problem_fit
+    from headsim.solvers import barrier
+
+    from headsim.mask import fit as fit_module
+
+    made = []
+    contact_terms = fit_module._contact_terms
+
+    def recording(*args, **kwargs):
+        made.append(contact_terms(*args, **kwargs))
+        return made[-1]
+
+    p = coarse_barrier_problem()
+    p = replace(p, options=replace(p.options, friction=0.5))
+    with monkeypatch.context() as m:
+        m.setattr(fit_module, "_contact_terms", recording)
+        fit = problem_fit(p, 10.0)
+    assert fit.balance_error <= p.options.balance_tolerance
+    x = fit.state.positions
+    contact = made[-1][0]
+    friction = contact.friction_forces(x)[p.skin_vertices]
+    normal = contact.vertex_forces(x, np.zeros(0))[p.skin_vertices] - friction
+    assert np.linalg.norm(friction.sum(axis=0)) > 0.01 * np.linalg.norm(normal.sum(axis=0))  # friction acts
+    assert np.linalg.norm(friction.sum(axis=0)) <= 0.5 * np.linalg.norm(normal.sum(axis=0))
+
+    plain_init = barrier.BarrierContact.__init__
+
+    def plain(self, *args, **kwargs):
+        kwargs["friction_lag"] = "plain"
+        plain_init(self, *args, **kwargs)
+
+    monkeypatch.setattr(barrier.BarrierContact, "__init__", plain)
+    with pytest.raises(ConvergenceError, match="30 updates"):
+        problem_fit(p, 10.0)
