@@ -82,8 +82,8 @@ EDGE = typer.Option(4.0, "--mask-edge", help="built-in mask element size, mm")
 THERAPY = typer.Option(980.665, "--therapy-pressure", help="air pressure the seal must hold, Pa (10 cmH2O)")
 THRESH = typer.Option(4.266, "--threshold", help="pressure-injury threshold, kPa (32 mmHg)")
 FRICTION = typer.Option(0.0, "--friction", help="Coulomb coefficient skin-cushion, nonlinear mode (default 0: "
-                        f"frictionless; silicone on dry skin ~{SKIN_SILICONE_FRICTION:g}, Derler & Gerhardt 2012; the "
-                        "solve may not converge)")
+                        f"frictionless; silicone on dry skin ~{SKIN_SILICONE_FRICTION:g}, Derler & Gerhardt 2012; its "
+                        "outer loop may not converge, which is reported)")
 LEAK = typer.Option(LARGE_LEAK_LPM, "--leak-threshold", help="largest unintentional leak judged clinically "
                     "acceptable, L/min (default: the large-leak flag of ResMed CPAP devices)")
 MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM contact) or condensed (linear face "
