@@ -580,24 +580,33 @@ class ChainOptions:
         springs evaluated at the reached end, E' − E = −½(u^{i+1} − u^i)ᵀM(u_h − u^i) + ½Σ_α λ_α J_α u_h
         − ½ΔqᵀHΔq (H: the springs' Hessian, ε = 0, frictionless contacts λ_α J_α u^{i+1} = 0). The former
         scheme (u_h = u_J) is dissipative through ½Σλ_α J_α u_J < 0: its half step moves into the pressed
-        contacts, and that is its penetration; the projection removes that motion. Measured (issue 10):
-        7 × 30 drape strand, 300 steps, steps 150–300: StepStats.max_penetration 153 → 16.9 µm (0.48 r;
-        mean 78 → 2.4 µm), end-of-step capsule overlaps (exact, every 10th step) 43 → 7.9 µm; clamped fibre
+        contacts, and that is its penetration; the projection removes that motion. Measured (issue 10; with
+        ``separating_candidates``, both defaults): 7 × 30 drape strand, 300 steps, steps 150–300:
+        StepStats.max_penetration 153 → 25.3 µm (0.72 r; mean 78 → 2.4 µm; 16.9 µm without the candidates),
+        end-of-step capsule overlaps (exact, every 10th step) 43 → 5.3 µm; 40 × 30 strand at t = 0.3 s
+        (``benchmarks/bench_penetration.py --settle 300``): StepStats 165 → 31–48 µm, sphere rows deeper than
+        r 160 → 0–1, end-of-step fibre overlaps deepest 49–53 → 25–39 µm (pairs deeper than r 30–32 → 0–3);
+        clamped fibre
         bent onto a plane by its springs (``tests/solvers/test_chains.py``) 6.1 r → 0.11 r; resting 4-layer
         stack: largest single-step energy rise −3e-9 → +1.0e-7 of its energy (1e-6 allowed), sink 0.0016 →
         0.0008 r; ``test_anchored_chain_…`` and ``test_energy_never_increases_for_inelastic_impacts``
         unchanged; 11–14 ms per step on the 7 × 30 strand either way (2 shared cores). Open: on the clamped
-        bent fibre the projected scheme is not monotone in energy: single-step gains of up to 1.3e-3 of the
-        energy at rest (6.5e-5 without push-out) and 60 % in the first step after releasing the straight
-        fibre with its curved rest shape, where the first-order identity above does not hold (not
-        understood; the former scheme is monotone there but sinks the fibre 6–113 radii into the plane).
-    separating_candidates : coupled mode, default False (opt-in): a penetrating pair (g < 0) that the persistence
-        filter (eq. 8.9) drops because it separates at u⁻ is kept as a candidate row, which the coupled solve
-        turns into a row as soon as its current velocities close it. Measured on the 7 × 30 drape strand
-        (before ``half_step_projection``): a fibre pair 33 µm deep with no row for 6 steps (separating at
-        u⁻, closing after the contact solve changed the chain's velocities) reached 67 µm. With the projection
-        the drape strand passes its test either way (steps 150–300: 13.6 µm with it, 16.9 µm without; one
-        chaotic trajectory each), so it is not the default.
+        bent fibre (rest radius R_c = 0.2 m) the projected scheme is not monotone in energy: single-step gains
+        of up to 1.3e-3 of the resting fibre's energy (9e-4 without push-out; R_c = 5 cm: none with push-out,
+        6.5e-5 without), and +7.6e-10 J (60 % of the initial 1.28e-9 J) in the first step after releasing
+        the straight fibre with its curved rest shape, where the terms of the identity above sum to
+        −3.9e-11 J: some first-order term is missing from it (not found; the former scheme follows the
+        identity there and is monotone, but sinks the fibre 6–113 radii into the plane).
+    separating_candidates : coupled mode, default True: a penetrating pair (g < 0) that the persistence filter
+        (eq. 8.9) drops because it separates at u⁻ is kept as a candidate row, which the coupled solve turns
+        into a row as soon as its current velocities close it (the active set of eq. 8.9 evaluated at the
+        solve's iterate instead of u⁻ only). Without it such a pair has no row at all for the step: measured
+        on the 7 × 30 drape strand, a fibre pair 33 µm deep without a row for 6 steps (separating at u⁻,
+        closing after the contact solve changed the chain's velocities) reached 67 µm. With
+        ``half_step_projection``, 40 × 30 strand at t = 0.3 s, end-of-step fibre overlaps: deepest 68–70 µm
+        and 43–48 pairs deeper than r without it, 25–39 µm and 0–3 with it; 7 × 30 strand, steps 150–300:
+        StepStats 16.9 µm without, 25.3 µm with (end-of-step overlaps 7.9 / 5.3 µm; one chaotic trajectory
+        each). False: the former filter (transient contacts dropped).
     fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
     contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
         constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
@@ -638,8 +647,10 @@ class ChainOptions:
         0.5066 at the 60-sweep cap); with a second job on the machine (load 2–3.5) no gain at all (the
         threads share one core). Default 1 because the gain is small and machine-dependent, and because the
         different iterate at the sweep cap changes the (chaotic) drape trajectories: the strict-xfail Table
-        8.1 iso/aniso test of ``tests/hair/test_drape.py`` gives 1.107 (1 domain), 1.035, 0.993, 1.053
-        (2, 3, 4 domains), i.e. it passes by chance for 2 and 3 domains, not reliably.
+        8.1 iso/aniso test of ``tests/hair/test_drape.py`` gave 1.107 (1 domain), 1.035, 0.993, 1.053
+        (2, 3, 4 domains), i.e. it passed by chance for 2 and 3 domains, not reliably; with
+        ``half_step_projection`` alone 0.993, 0.981, 0.948, 1.074; with it and ``separating_candidates``
+        (the defaults) 1.072 (1 domain).
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -668,7 +679,7 @@ class ChainOptions:
     recovery_keeps_joints: bool = True
     springs_in_first_half_step: bool = True
     half_step_projection: bool = True
-    separating_candidates: bool = False
+    separating_candidates: bool = True
     contact_domains: int = 1
 
     def __post_init__(self):
