@@ -595,8 +595,10 @@ class ChainOptions:
         of up to 1.3e-3 of the resting fibre's energy (9e-4 without push-out; R_c = 5 cm: none with push-out,
         6.5e-5 without), and +7.6e-10 J (60 % of the initial 1.28e-9 J) in the first step after releasing
         the straight fibre with its curved rest shape, where the terms of the identity above sum to
-        −3.9e-11 J: some first-order term is missing from it (not found; the former scheme follows the
-        identity there and is monotone, but sinks the fibre 6–113 radii into the plane).
+        −3.9e-11 J: some first-order term is missing from it (not found; the spring impulses were checked
+        to equal Δt K(θ^{i+1} − θ°) at the reached rotations, joint by joint; the gain sits in the tip
+        segment's inner joint, whose θ − θ° goes from 0.005 to 0.021 rad in that step; the former scheme
+        follows the identity there and is monotone, but sinks the fibre 6–113 radii into the plane).
     separating_candidates : coupled mode, default True: a penetrating pair (g < 0) that the persistence filter
         (eq. 8.9) drops because it separates at u⁻ is kept as a candidate row, which the coupled solve turns
         into a row as soon as its current velocities close it (the active set of eq. 8.9 evaluated at the
