@@ -41,7 +41,7 @@ Measured (2 shared cores, branch ``pen2`` at the commit adding this script):
   without (but 213 µm, 6 r, into the plane).
 
 Variants tried and dropped (each measured here, none monotone): the projection kept as velocity
-(u⁻ = u_h + Δt g): first step fixed, rises 1.7e-12 J at step 7; the first half step with the previous
+(u⁻ = u_h + Δt g): first step fixed, rises 1.7e-12 J at step 8; the first half step with the previous
 pass's contact-solved twists: 3.8e-14 J converged, 6.5e-10 J in the first step at the cap; the
 projection in the kinetic metric alone (its spring rows C = 0): 1.6e-9 J in the first step at the cap
 (no push-out), 1.9e-12 J at step 6 converged.

@@ -615,7 +615,7 @@ class ChainOptions:
         contact terms ≈ 1e-26 J): the projected twists u_h are not u^i plus a part of the step's velocity
         change, and the term the projection adds, −½(u^{i+1} − u^i)ᵀM(u_h − u_J), has no sign. Variants
         measured and dropped, none monotone: the projection kept as velocity (u⁻ = u_h + Δt g; first step
-        fixed, 1.7e-12 J at step 7), the first half step with the previous pass's contact-solved twists
+        fixed, 1.7e-12 J at step 8), the first half step with the previous pass's contact-solved twists
         (6.5e-10 J at the cap, 3.8e-14 J converged) and the projection in the kinetic metric alone (spring
         rows C = 0: 1.6e-9 J in the first step at the cap, 1.9e-12 J at step 6 converged).
     separating_candidates : coupled mode, default True: a penetrating pair (g < 0) that the persistence filter
