@@ -24,6 +24,7 @@ from headsim.solvers.chains import (
     joint_gaps,
     kinetic_energy,
     potential_energy,
+    spring_energy,
 )
 
 K = _kernels.chains
@@ -414,6 +415,83 @@ def test_anchored_chain_keeps_its_root_and_loses_energy():
     assert e[-1] < e[0]
     assert np.diff(e).max() <= 0.01 * np.abs(e - e[0]).max()
     assert state.position[-1, 1] < -1e-3  # it did bend down
+
+
+def _clamped_fibre_bent_onto_plane(steps=300, energies=False, **options):
+    """A root-clamped fibre (20 segments of 1 mm, 70 µm) whose rest shape is an arc of radius 0.2 m curving
+    down from the clamp, laid straight along the plane y = 0 that it rests on: its joint springs press it
+    into the plane everywhere (the bending moment EI/R_c = 2.3e-8 N m holds it straight, the plane
+    carries the reaction), so it is held bent by its contact as the draped strand of issue 10 is. Returns
+    StepStats.max_penetration (m) per step; ``energies``: also the total energy (kinetic + gravity +
+    joint springs, J) of the start and of every step's end state."""
+    from headsim.solvers.chains import chain_state_from_polylines
+
+    n, L, Rc = 20, 2e-2, 0.2
+    phi = np.linspace(0.0, L / Rc, n + 1)
+    arc = np.stack([Rc * np.sin(phi), R_FIBRE - Rc * (1.0 - np.cos(phi)), np.zeros(n + 1)], 1)
+    straight = np.stack([np.linspace(0.0, L, n + 1), np.full(n + 1, R_FIBRE), np.zeros(n + 1)], 1)
+    model, _ = chain_model_from_polylines(arc, [0, n + 1], radius=R_FIBRE, rest_shape="initial", anchored=True)
+    state = chain_state_from_polylines(model, straight)
+    solver = ChainSolver(ChainOptions(fibre_contacts=False, **options))
+    plane = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    pen = []
+    e = [kinetic_energy(model, state) + potential_energy(model, state) + spring_energy(model, state)]
+    for _ in range(steps):
+        state = solver.step(model, state, 1e-3, plane)
+        pen.append(solver.last_stats.max_penetration)
+        e.append(kinetic_energy(model, state) + potential_energy(model, state) + spring_energy(model, state))
+    return (np.array(pen), np.array(e)) if energies else np.array(pen)
+
+
+def test_fibre_held_bent_by_its_contact_stays_out_of_it():
+    """Issue 10 in its simplest form (:func:`_clamped_fibre_bent_onto_plane`): the joint stage gives the
+    fibre its spring velocity towards the plane, and a first half step that moves with it carries the fibre
+    into the plane every step, which only the split push-out (β = 0.2) undoes. With the half-step projection
+    (``ChainOptions.half_step_projection``, default) the penetration over steps 150–300 stays below half a
+    fibre radius (measured 0.11 r; end-of-step plane distances of the segment axes are part of
+    StepStats.max_penetration); with the former first half step the fibre sits 6.1 r (213 µm) inside the
+    plane (measured, asserted too: the test tells the two schemes apart)."""
+    pen = _clamped_fibre_bent_onto_plane()
+    assert pen[150:].max() < 0.5 * R_FIBRE
+    old = _clamped_fibre_bent_onto_plane(half_step_projection=False)
+    assert old[150:].max() > 2.0 * R_FIBRE
+
+
+# round-off bound of a single step's energy rise on the clamped bent fibre: 1e-10 of its initial energy
+# (1.14e-9 J, i.e. ≈ 1e-19 J); the former first half step stays below it (largest rise 4.5e-22 J, 4e-13 of it)
+BENT_FIBRE_ROUND_OFF = 1e-10
+
+
+@pytest.mark.parametrize("recovery", [0.2, 0.0])
+def test_former_half_step_never_gains_energy_on_the_fibre_held_bent(recovery):
+    """Control of the xfail below: with ``half_step_projection=False`` the clamped bent fibre (ε = 0) never
+    gains energy beyond round-off in 300 steps from its release, at rest included (measured: largest
+    single-step change +4.5e-22 J with push-out, −8.9e-16 J without), so the bound there is attainable."""
+    _, e = _clamped_fibre_bent_onto_plane(energies=True, half_step_projection=False,
+                                          penetration_recovery=recovery)
+    assert np.diff(e).max() <= BENT_FIBRE_ROUND_OFF * e[0]
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 10, open: the projected first half step (ChainOptions.half_step_projection) is not monotone in "
+    "energy on the clamped bent fibre (ε = 0). Measured (benchmarks/bench_energy_ledger.py): with push-out "
+    "(β = 0.2) largest single-step rise 1.2e-12 J (1.1e-3 of E0 = 1.14e-9 J) at step 11, and at rest "
+    "(steps 150–300) a period-3 limit cycle of the tip joint (+7.0e-13, +2.4e-13, −9.5e-13 J; tip "
+    "segments at 2–3 rad/s, the tip end 3.8 µm into the plane at mid-step, pushed out each step); "
+    "without push-out +7.6e-10 J (0.67 E0) in the first step, created by the last pass's velocity solve "
+    "stopped at its 60-sweep cap (joint-rate residual 23 mm/s, 8.9 µm end-of-step joint gaps; converged: "
+    "−1.9e-10 J), and with every solve converged still +8.7e-14 J at step 11, where the step energy "
+    "identity's term ½(u'−u)ᵀM(u−u_h) gives +8.0e-14 J (−2.1e-13 J with u_J in place of u_h): the "
+    "projection itself. See the ChainOptions.half_step_projection notes."))
+@pytest.mark.parametrize("recovery", [0.2, 0.0])
+def test_fibre_held_bent_by_its_contact_never_gains_energy(recovery):
+    """Issue 10's requirement "energy never increases with ε = 0" on :func:`_clamped_fibre_bent_onto_plane`
+    at the defaults (with and without the split push-out): no single step of the 300 from its release, the
+    resting fibre's steps included, raises the total energy (kinetic + gravity + joint springs) by more
+    than :data:`BENT_FIBRE_ROUND_OFF` of the initial energy. Fails with the projected first half step (see
+    the xfail reason for the measured rises and where they arise)."""
+    _, e = _clamped_fibre_bent_onto_plane(energies=True, penetration_recovery=recovery)
+    assert np.diff(e).max() <= BENT_FIBRE_ROUND_OFF * e[0]
 
 
 def test_friction_generators_lie_on_the_limit_curve():

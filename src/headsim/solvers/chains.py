@@ -46,7 +46,12 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
 3. **Harmonisation.** ``harmonisation_iterations`` > 1 repeats joints → contacts with the contact
    stage's velocity change fed into the joint trial integration, so the joints close around the
    projected motion; the contact stage is always last (non-penetration wins; the remaining joint gap
-   is corrected next step, "no cumulative error").
+   is corrected next step, "no cumulative error"). The last pass's first half step moves with the joint
+   stage's twists projected onto the previous pass's contacts (no closing velocity into a penetration,
+   ``ChainOptions.half_step_projection``): the joint springs' velocity of a strand held bent by its
+   contacts no longer carries it into them before the detection (issue 10). ``StepStats.max_penetration``
+   is taken from the gaps of that last mid-step state (first order from the detection state) and from the
+   end-of-step obstacle distances.
 4. Second half step q^{i+1} = q^{i+½} + ½Δt u^{i+1}.
 
 Gap handling (our additions, both stated): the normal bound is v_N − g/Δt for a separated pair
@@ -533,8 +538,9 @@ class ChainOptions:
         a strand held bent by its contacts (draped over the sphere, fibres pressed together) moves into
         those contacts in the unconstrained first half step by ½Δt × the spring velocity (10–40 mm/s at the
         deepest contacts of the 40 × 30 strand; −0.3 mm/s with the springs set to zero), which only the
-        split push-out undoes: 130 µm (3.7 r) into the sphere at t = 0.2 s, 55–60 µm at t = 1.5 s.
-        False (opt-in, **not yet validated**): the first half step moves with the twists of a second,
+        split push-out undoes: 130 µm (3.7 r) into the sphere at t = 0.2 s, 55–60 µm at t = 1.5 s (all
+        measured before ``half_step_projection``, which now removes that motion in the last pass).
+        False (opt-in, **not yet validated**; it replaces the projection): the first half step moves with the twists of a second,
         spring-free joint solve (the joints still close) and the spring impulses enter u⁻ only, where the
         contact solve sees them, as Moreau's midpoint scheme applies forces (q^{i+½} = q^i + ½Δt u^i).
         Measured: from the settled 40 × 30 state, 100 steps: sphere penetration 55.7 → 1.3 µm, rows deeper
@@ -542,6 +548,86 @@ class ChainOptions:
         300 steps from the start: max 232 → 82 µm, steps 150–300 max 153 → 42 µm (mean 78 → 10 µm). It
         changes contact-free dynamics too: ``test_anchored_chain_keeps_its_root_and_loses_energy`` fails with
         it (a transient single-step energy gain of 1.1e-11 J, 7 % of the energy exchanged, 1 % allowed).
+        Why it gains: the joint stage's implicit spring impulse Δt K(θ_trial − θ°) is evaluated at the trial
+        end θ_trial = θ^i + Δt ω_J (the joint stage assumes the segments rotate with ω_J for the whole step),
+        but with this option the step reaches θ^i + ½Δt ω_J0 + ½Δt ω^{i+1} (ω_J0 spring-free): the spring is
+        evaluated at a configuration the step does not reach, and its discrete work differs from the change
+        of its potential. 1-D linear spring (mass 1, stiffness k, no contact): v' = v − Δt k x_t,
+        x_t = x + Δt v', x' = x + ½Δt(v + v') gives E' − E = −k (x' − x)(x_t − (x + x')/2)
+        = −½ k Δt² (v + v')(¾ v' − ¼ v), positive when the spring brakes the motion hard (v' between −v
+        and v/3), which is the anchored chain's transient. Evaluating the spring at the reached end instead
+        (trial x + ½Δt v + ½Δt v') is dissipative (E' − E = −½ k (x' − x)²) but not L-stable: for
+        Δt² k/m → ∞, x' → 0 and v' → −v − 2x/Δt, an undamped period-2 ringing of the stiff bending modes
+        (Δt² K/I ≈ 1–10⁴ for 70 µm fibres at 1–10 mm segments), so that variant was not pursued; see
+        ``half_step_projection`` for the scheme that is the default now.
+    half_step_projection : default True (coupled mode, ``harmonisation_iterations`` ≥ 2; issue 10): the first
+        half step of the last harmonisation pass moves with the joint stage's twists u_J projected, in the
+        kinetic metric plus the implicit spring rows (C = ½Δt² K_w, as in the contact solve), onto the
+        contacts of the previous pass: min ½‖u_h − u_J‖² s.t. J_α u_h ≥ −max(g_α^i, 0)/(½Δt) for every row
+        that is a row from the start or carried an impulse there (g_α^i: its gap at t_i, first order; a
+        penetration may not deepen, a gap may close to contact), every joint of the touched fibres keeping its
+        relative anchor velocity J_j u_h = J_j u_J (the joint stage's gap closure), frictionless, ε = 0,
+        solved by the coupled kernel to ``qp_tolerance`` (its velocity error enters the positions directly:
+        at ``contact_tolerance`` = 1e-5 m/s, 5 nm per step, the resting stack of the tests gained up to
+        1.7e-5 of its energy in single steps, 1e-6 allowed). Everything else is unchanged: u⁻ = u_J + Δt g
+        (the contact solve sees the springs' velocity and resolves it by the contact impulse), the
+        velocity and push-out solves, and contact-free steps (bitwise: no rows, no projection). The spring
+        rows of that pass's contact solves take ω_ref = 2ω_J − ω_h + dc_ω as their reference relative
+        rotation rate (dc: the previous pass's contact velocity change that the joint trial integration
+        contains), so that the total spring impulse Δt K(θ_trial − θ°) + ½Δt² K(ω^{i+1} − ω_ref) is
+        Δt K(θ^i + ½Δt ω_h + ½Δt ω^{i+1} − θ°), the spring at the rotation the step reaches (first order),
+        as the former scheme's is. Energy: with M(u^{i+1} − u^i) = P_springs + P_gravity + P_contacts and the
+        springs evaluated at the reached end, E' − E = −½(u^{i+1} − u^i)ᵀM(u_h − u^i) + ½Σ_α λ_α J_α u_h
+        − ½ΔqᵀHΔq (H: the springs' Hessian, ε = 0, frictionless contacts λ_α J_α u^{i+1} = 0). The former
+        scheme (u_h = u_J) is dissipative through ½Σλ_α J_α u_J < 0: its half step moves into the pressed
+        contacts, and that is its penetration; the projection removes that motion. Measured (issue 10; with
+        ``separating_candidates``, both defaults): 7 × 30 drape strand, 300 steps, steps 150–300:
+        StepStats.max_penetration 153 → 25.3 µm (0.72 r; mean 78 → 2.4 µm; 16.9 µm without the candidates),
+        end-of-step capsule overlaps (exact, every 10th step) 43 → 5.3 µm; 40 × 30 strand at t = 0.3 s
+        (``benchmarks/bench_penetration.py --settle 300``): StepStats 165 → 31–48 µm, sphere rows deeper than
+        r 160 → 0–1, end-of-step fibre overlaps deepest 49–53 → 25–39 µm (pairs deeper than r 30–32 → 0–3);
+        clamped fibre
+        bent onto a plane by its springs (``tests/solvers/test_chains.py``) 6.1 r → 0.11 r; resting 4-layer
+        stack: largest single-step energy rise −3e-9 → +1.0e-7 of its energy (1e-6 allowed), sink 0.0016 →
+        0.0008 r; ``test_anchored_chain_…`` and ``test_energy_never_increases_for_inelastic_impacts``
+        unchanged; 11–14 ms per step on the 7 × 30 strand either way (2 shared cores). Open (strict xfail
+        ``test_fibre_held_bent_by_its_contact_never_gains_energy``; ledger: ``benchmarks/bench_energy_ledger.py``):
+        the projected scheme is not monotone in energy on the clamped bent fibre (R_c = 0.2 m, ε = 0,
+        E0 = 1.14e-9 J); the former scheme is (largest single-step rise 4.5e-22 J, round-off). Measured, per
+        step and substep: (1) without push-out, +7.6e-10 J (0.67 E0) in the first step after the release,
+        made by the last pass's velocity solve stopped at its 60-sweep cap (``qp_iterations``; joint gap-rate
+        residual 23 mm/s, 8.9 µm joint gaps at the step's end against 1.2 µm converged, the tip joint bent
+        0.016 rad away from rest; the identity above does not hold for a capped solve, which violates its
+        premises J_j u^{i+1} = 0 and the springs at the reached end). Converged (600 sweeps, 477 used) the
+        step loses 1.9e-10 J; the projection QP's own sweep cap does not matter (60 or 5000: the same). The
+        former scheme's solve stops at the cap too (residual 16 mm/s) without a gain; a likely difference
+        (not proven): the spring rows are not balanced at u⁻ (reference 2ω_J − ω_h + dc_ω; ω_h − ω_J 42 rad/s
+        relative at the tip joint), and the Gauss–Seidel between the contacts and a chain with Δt²K/I ≈ 1e4
+        (tip segment) converges slowly; starting it from the chains
+        balanced for that reference changes nothing (its first sweep does exactly that); ending the velocity
+        solve with an exact joint solve removes this gain but leaves rises of 4.7e-12 J. (2) With push-out
+        (the default) the first step loses 2.2e-10 J, the largest rise is 1.2e-12 J (1.1e-3 E0, step 11),
+        and the resting fibre runs a period-3 limit cycle of its tip joint (+7.0e-13, +2.4e-13, −9.5e-13 J;
+        segments 18–19 at 2–3 rad/s, the tip end 3.8 µm into the plane at mid-step and pushed out every
+        step), gone with converged solves. (3) With every solve converged (20,000 sweeps, 1e-9 m/s) rises of
+        up to 8.7e-14 J (7.7e-5 E0) remain at steps 10–12 and they are the identity's first term:
+        −½(u^{i+1} − u^i)ᵀM(u_h − u^i) = +8.0e-14 J at step 11 (−2.1e-13 J with u_J in place of u_h; the
+        contact terms ≈ 1e-26 J): the projected twists u_h are not u^i plus a part of the step's velocity
+        change, and the term the projection adds, −½(u^{i+1} − u^i)ᵀM(u_h − u_J), has no sign. Variants
+        measured and dropped, none monotone: the projection kept as velocity (u⁻ = u_h + Δt g; first step
+        fixed, 1.7e-12 J at step 8), the first half step with the previous pass's contact-solved twists
+        (6.5e-10 J at the cap, 3.8e-14 J converged) and the projection in the kinetic metric alone (spring
+        rows C = 0: 1.6e-9 J in the first step at the cap, 1.9e-12 J at step 6 converged).
+    separating_candidates : coupled mode, default True: a penetrating pair (g < 0) that the persistence filter
+        (eq. 8.9) drops because it separates at u⁻ is kept as a candidate row, which the coupled solve turns
+        into a row as soon as its current velocities close it (the active set of eq. 8.9 evaluated at the
+        solve's iterate instead of u⁻ only). Without it such a pair has no row at all for the step: measured
+        on the 7 × 30 drape strand, a fibre pair 33 µm deep without a row for 6 steps (separating at u⁻,
+        closing after the contact solve changed the chain's velocities) reached 67 µm. With
+        ``half_step_projection``, 40 × 30 strand at t = 0.3 s, end-of-step fibre overlaps: deepest 68–70 µm
+        and 43–48 pairs deeper than r without it, 25–39 µm and 0–3 with it; 7 × 30 strand, steps 150–300:
+        StepStats 16.9 µm without, 25.3 µm with (end-of-step overlaps 7.9 / 5.3 µm; one chaotic trajectory
+        each). False: the former filter (transient contacts dropped).
     fibre_contacts : detect fibre–fibre contacts (False: obstacles only).
     contact_coupling : ``"per-body"`` — the seed's independent projection of every segment with moving
         constraints (Alg. 6); ``"coupled"`` — one nonlinear Gauss–Seidel over all contacts with relative
@@ -582,8 +668,10 @@ class ChainOptions:
         0.5066 at the 60-sweep cap); with a second job on the machine (load 2–3.5) no gain at all (the
         threads share one core). Default 1 because the gain is small and machine-dependent, and because the
         different iterate at the sweep cap changes the (chaotic) drape trajectories: the strict-xfail Table
-        8.1 iso/aniso test of ``tests/hair/test_drape.py`` gives 1.107 (1 domain), 1.035, 0.993, 1.053
-        (2, 3, 4 domains), i.e. it passes by chance for 2 and 3 domains, not reliably.
+        8.1 iso/aniso test of ``tests/hair/test_drape.py`` gave 1.107 (1 domain), 1.035, 0.993, 1.053
+        (2, 3, 4 domains), i.e. it passed by chance for 2 and 3 domains, not reliably; with
+        ``half_step_projection`` alone 0.993, 0.981, 0.948, 1.074; with it and ``separating_candidates``
+        (the defaults) 1.072 (1 domain).
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -611,6 +699,8 @@ class ChainOptions:
     contact_tolerance: float = 1e-5
     recovery_keeps_joints: bool = True
     springs_in_first_half_step: bool = True
+    half_step_projection: bool = True
+    separating_candidates: bool = True
     contact_domains: int = 1
 
     def __post_init__(self):
@@ -647,7 +737,7 @@ class StepStats:
     potential_energy: float = 0.0
     spring_energy: float = 0.0
     max_joint_gap: float = 0.0
-    max_penetration: float = 0.0
+    max_penetration: float = 0.0  # m: −min of the last pass's mid-step row gaps and the end-of-step obstacle gaps
     contacts: int = 0
     fibre_contacts: int = 0
     obstacle_contacts: int = 0
@@ -869,6 +959,10 @@ class ChainSolver:
                     vn = np.empty(len(p.body))
                     KP.row_normal_velocity(p.body, p.partner, p.normal, p.lever, p.partner_lever, uu_all, vn)
                     keep = vn <= smooth
+                    if o.separating_candidates and o.contact_coupling == "coupled":
+                        cand = ~keep & (p.gap < 0)  # separating penetrations: candidate rows
+                        p.tight = p.tight & ~cand
+                        keep |= cand
                     if not keep.all():
                         parts[i] = _Rows(*[getattr(p, k)[keep] for k in _Rows.__dataclass_fields__])
         fields = _Rows.__dataclass_fields__
@@ -901,6 +995,7 @@ class ChainSolver:
                 P = len(pairs)
                 S = model.n_segments
                 coupled = o.contact_coupling == "coupled"
+                mark = (2 if o.separating_candidates else 1) if coupled else 0
                 # coupled mode: the fibre rows are written behind the obstacle rows into the arrays of the whole
                 # row set (one copy less of ≈ 2 M rows on the reference scene than a concatenation, 0.3–0.4 s)
                 n0 = sum(len(p.body) for p in parts) if coupled else 0
@@ -915,7 +1010,7 @@ class ChainSolver:
                 params = np.ascontiguousarray(params, np.float64)
                 geo = (np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r)
                 rest = (np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin), float(dt), uu,
-                        CLOSING_MARGIN_FACTOR, coupled, smooth, a, b, n, la, lb, gap, tight)
+                        CLOSING_MARGIN_FACTOR, mark, smooth, a, b, n, la, lb, gap, tight)
                 fused = KP.detect_rows_parallel if S >= o.parallel_threshold else KP.detect_rows
                 k = fused(pairs, params, *geo, model.segment_fibre, model.is_root, *rest, key)
                 if k < 0:  # a pair with a ≥ b (not from these trees): sort, filter and build the rows in steps
@@ -1084,8 +1179,42 @@ class ChainSolver:
         return (k.astype(np.int64), seg.astype(np.int64), np.ascontiguousarray(rk), np.ascontiguousarray(rl),
                 np.ascontiguousarray(target), np.ascontiguousarray(C), np.ascontiguousarray(w0))
 
+    def _half_step_projection(self, model, rows, lam, gaps0, x, R, x_mid, R_mid, vJ, wJ, dt):
+        """(S, 6) twists of the last pass's first half step (``ChainOptions.half_step_projection``): the joint
+        stage's twists u_J = (vJ, wJ) projected, in the kinetic metric plus the implicit joint springs' rows,
+        onto {J_α u ≥ −max(g_α^i, 0)/(½Δt)} for the previous pass's rows α that are rows from the start or
+        carry an impulse λ_α > 0 (gaps0: their gaps at t_i, m), frictionless, ε = 0, with every joint of the
+        touched fibres keeping its relative anchor velocity J_j u = J_j u_J. Row geometry and joint levers
+        are those of the previous pass's mid-step state x_mid, R_mid; dt in s."""
+        o = self.options
+        act = np.nonzero(rows.primary & ((lam > 0) | rows.tight))[0]
+        u = np.ascontiguousarray(np.concatenate([vJ, wJ], axis=1))
+        if not len(act):
+            return u
+        body, partner = np.ascontiguousarray(rows.body[act]), np.ascontiguousarray(rows.partner[act])
+        normal, lever = np.ascontiguousarray(rows.normal[act]), np.ascontiguousarray(rows.lever[act])
+        plever = np.ascontiguousarray(rows.partner_lever[act])
+        sub = _Rows(body, partner, normal, lever, plever, rows.gap[act], rows.obstacle[act], rows.primary[act],
+                    rows.key[act])
+        jk, jl, jrk, jrl, _, jc, jw0 = self._joint_rows(model, sub, x_mid, R_mid, dt, u)
+        kk = np.maximum(jk, 0)
+        uk = np.where((jk >= 0)[:, None], u[kk, :3] + np.cross(u[kk, 3:], jrk), 0.0)
+        jt = np.ascontiguousarray(uk - (u[jl, :3] + np.cross(u[jl, 3:], jrl)))
+        chain_start = np.ones(len(jk), bool)
+        chain_start[1:] = jk[1:] != jl[:-1]
+        chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
+        n = len(act)
+        lam_out, fr_out = np.zeros(n), np.zeros((n, 2))
+        par = model.n_segments >= o.parallel_threshold
+        target = np.ascontiguousarray(-np.maximum(gaps0[act], 0.0) / (0.5 * dt))
+        KC.project_coupled(body, partner, normal, lever, plever, target, u, self._writable(model.mass),
+                           np.ascontiguousarray(R), self._writable(model.inertia), np.zeros(0), np.zeros(0), 0.0,
+                           int(o.qp_iterations), float(o.qp_tolerance), lam_out, fr_out, jk, jl, jrk, jrl, jt,
+                           jc, jw0, chain_off, -1, par)
+        return u
+
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
-                  x_mid=None, warm=None, pass_key=0, joints_last=False):
+                  x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
         ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
         Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
@@ -1113,7 +1242,8 @@ class ChainSolver:
             par = model.n_segments >= o.parallel_threshold
             ps = self._pass_setup
             if ps is None or ps[0] is not rows or ps[1] != pass_key:  # once per harmonisation pass
-                jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt, u_minus)
+                jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt,
+                                                                 u_minus if u_spring is None else u_spring)
                 chain_start = np.ones(len(jk), bool)
                 chain_start[1:] = jk[1:] != jl[:-1]
                 chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
@@ -1190,6 +1320,7 @@ class ChainSolver:
         sweeps_box = [0]
         u_end = None
         promoted = 0
+        vel_impulses = None
         for it in range(o.harmonisation_iterations):
             t0 = time.perf_counter()
             vJ, wJ, nit, _ = self._joints(model, x, R, v, w, dt, dx_extra, dth_extra)
@@ -1197,6 +1328,7 @@ class ChainSolver:
             t1 = time.perf_counter()
             secs["joints"] += t1 - t0
             w_mid = np.empty_like(wJ)
+            projected = False
             if not o.springs_in_first_half_step:
                 # the first half step moves with the joint stage's twists without the spring (and damping)
                 # impulses: they enter u⁻ only, where the contact solve sees them (see the option's notes)
@@ -1205,11 +1337,27 @@ class ChainSolver:
                                                      joint_damping=0.0 * model.joint_damping))
                 vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra)
                 half_step(x, R, vJ0, wJ0, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
+                w_hs = w_mid
+                Lw = np.einsum("sac,sc,sbc,sb->sa", R, model.inertia, R, wJ)
+                w_mid = np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / model.inertia, R_mid, Lw)
+            elif it > 0 and o.half_step_projection and vel_impulses is not None:
+                # no closing velocity into the contacts of the previous pass (see the option's notes)
+                uh = self._half_step_projection(model, rows, vel_impulses[0], gaps0, x, R, x_mid, R_mid, vJ, wJ,
+                                                dt)
+                w_hs = np.empty_like(wJ)
+                projected = True
+                half_step(x, R, np.ascontiguousarray(uh[:, :3]), np.ascontiguousarray(uh[:, 3:]), model.inertia,
+                          0.5 * dt, x_mid, R_mid, w_hs)
                 Lw = np.einsum("sac,sc,sbc,sb->sa", R, model.inertia, R, wJ)
                 w_mid = np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / model.inertia, R_mid, Lw)
             else:
                 half_step(x, R, vJ, wJ, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
+                w_hs = w_mid
             u_minus = np.concatenate([vJ + dv_ext, w_mid], axis=1)
+            # the spring rows' reference twist: u⁻, or, where the first half step rotated with ω_h ≠ ω_J, the one
+            # whose rows put the spring impulse at the rotation the step reaches (see _joint_rows)
+            u_spring = u_minus if not projected else np.concatenate(
+                [vJ, 2.0 * w_mid - w_hs + dth_extra / (0.5 * dt)], axis=1)
             t2 = time.perf_counter()
             secs["integration"] += t2 - t1
             if rows is None:
@@ -1231,17 +1379,23 @@ class ChainSolver:
                 lam = np.zeros(len(rows.body))
             if it == 0:
                 gaps = rows.gap.copy()
-                x_mid0, w_mid0 = x_mid.copy(), w_mid.copy()
+                x_mid0, w_hs0 = x_mid.copy(), w_hs.copy()
+                # row gaps at t_i (first order): the mid-step gaps less the first half step's approach
+                gaps0 = np.empty(len(rows.body))
+                KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
+                                       np.ascontiguousarray(np.concatenate([x_mid - x, 0.5 * dt * w_hs], axis=1)),
+                                       gaps0)
+                gaps0 = rows.gap - gaps0
                 warm = self._warm_start_impulses(rows) if o.warm_start else None
                 if warm is not None:  # a contact that carried an impulse last step is a row from the start
                     rows.tight |= warm[0] > 0
             else:  # contact points move with the bodies: first-order gap change of the new mid state
-                dq = np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_mid - w_mid0)], axis=1)
+                dq = np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_hs - w_hs0)], axis=1)
                 gaps = np.empty(len(rows.body))
                 KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
                 gaps += rows.gap
             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
-                                   sweeps_box, x_mid, warm, pass_key=it)
+                                   sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring)
             vel_impulses = self._impulses
             promoted += self._promoted
             u_pos = u_vel
@@ -1251,7 +1405,7 @@ class ChainSolver:
                 # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
                 u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
                                        R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm, pass_key=it,
-                                       joints_last=o.split_recovery and o.recovery_keeps_joints)
+                                       joints_last=o.split_recovery and o.recovery_keeps_joints, u_spring=u_spring)
                 promoted += self._promoted
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
@@ -1299,7 +1453,8 @@ class ChainSolver:
             st.promoted_rows = promoted
         st.obstacle_contacts = int((active & rows.obstacle).sum())
         st.fibre_contacts = st.contacts - st.obstacle_contacts
-        st.max_penetration = float(max(0.0, -rows.gap.min(initial=0.0)))
+        # the mid-step state the step integrates from: the last pass's (first order from the detection state)
+        st.max_penetration = float(max(0.0, -gaps.min(initial=0.0)))
         if obstacles:
             d3 = R_new[:, :, 2]
             ends = np.concatenate([x_new - model.half_length[:, None] * d3, x_new + model.half_length[:, None] * d3])

@@ -58,6 +58,8 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
         vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
         closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
         if -closing > smooth:
+            if mark_tight == 2 and gap < 0.0:  # a separating penetration: kept as a candidate row
+                return True, False, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
             return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         if closing < 0.0:
             closing = 0.0
@@ -96,7 +98,8 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     (S,) m/s: each segment's |v| + h|ω|), and marked ``tight`` when g < band + closing_factor · c Δt
     with c = max(0, −n·(u_a(p_a) − u_b(p_b))) the normal closing speed of the twists u (S, 6) (only with
     ``mark_tight``; otherwise, and for an empty u, every kept pair is tight). With u given, pairs that
-    separate faster than ``smooth`` (m/s, n·(u_a − u_b) > smooth) are dropped (persistence filter, eq. 8.9). Writes the kept rows compactly to the outputs (length ≥ P) and
+    separate faster than ``smooth`` (m/s, n·(u_a − u_b) > smooth) are dropped (persistence filter, eq. 8.9),
+    except, with ``mark_tight`` = 2, the penetrating ones (g < 0), which are kept as candidates (not tight). Writes the kept rows compactly to the outputs (length ≥ P) and
     returns their number."""
     k = 0
     have_u = u.shape[0] > 0
