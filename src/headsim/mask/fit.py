@@ -142,11 +142,10 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   tangent planes alike (the lagged map is continuous there, its slope beyond -1; not, as first read,
   tangent bases switching faces). Relaxed: 12 updates. With ipctk's planes and the relaxation
   (halving only): 5 / 8 / 12 / 8 updates, 66 / 159 / 256 / 409 iterations at 2.5 / 8 / 15 / 30 N.
-  Not converged yet: the coarse test problem at 25 N (the relaxed loop stalls with the residual
-  alternating 0.020 / 0.031 N against 0.005 N at one skin-cushion vertex pair whose friction turns by
-  ~70 deg between updates while the positions barely move: the slip of a pair is interpolated from
-  per-vertex anchors set at different first touches, so it can change steeply with the pair's
-  closest point; anchors per pair, or load increments, would remove that).
+  Not converged yet: the coarse test problem at 25 and 30 N (at 25 N the relaxed loop stalls, the residual
+  alternating 0.020 / 0.031 N against 0.005 N at a skin vertex lying on a cushion edge, whose
+  point-edge pair of negative weight and edge-edge pairs take different smoothed normals, so their
+  friction no longer cancels; :mod:`headsim.solvers.barrier_friction`, "Not settled").
   Counting every vertex's slip from the solve's start instead (the usual one-load-step form) made
   the outer loop alternate for 30 updates at 2.5 and 15 N: a cushion vertex over an edge between two
   skin triangles switched its pairs between the two faces, and its approach, counted as slip,
