@@ -148,3 +148,29 @@ def test_vertex_normals_of_a_fold_lie_between_its_faces():
     # off the fold: the face normal (-+CREASE, 0, 1) / |..|; on it: within the two faces' normals
     assert np.allclose(n[off, 0], -np.sign(v[off, 0]) * np.sin(half_fold), atol=1e-12)
     assert np.all(np.abs(n[~off, 0]) < np.sin(half_fold)) and np.allclose(n[:, 1], 0, atol=1e-12)
+
+
+def test_the_pairs_at_one_point_share_the_smoothed_normal():
+    """A tent's ridge edge passes 0.3 dhat over a vertex of the creased sheet (the first surface): the
+    vertex has several pairs (with the ridge and with the tent's faces through it; improved-max pairs
+    that share a point must agree for their friction to add up as the barrier's forces do). ipctk's
+    planes differ between them by 11 deg; the smoothed normals (the sheet's, interpolated at each
+    pair's closest point on it, all next to the vertex) by less than 0.05 deg."""
+    v, f = _grid(7, 1.0)
+    v[:, 2] = CREASE * np.abs(v[:, 0])
+    vertex = int(np.argmin(np.linalg.norm(v[:, :2] - [1 / 3, 0], axis=1)))
+    normal = np.array([-CREASE, 0.0, 1.0]) / np.hypot(CREASE, 1.0)
+    c = v[vertex] + 0.3 * DHAT * normal
+    tent = np.vstack([np.array([[0.02, -0.2, 0.0], [-0.02, 0.2, 0.0]]) + c, c + [0.15, 0, 0.1], c + [-0.15, 0, 0.1]])
+    v, f = np.vstack([v, tent]), np.vstack([f, np.array([[0, 1, 2], [1, 0, 3]]) + len(v)])
+    mesh = _mesh(v, f)
+    t = _tangential(mesh, v)
+    spread = {}
+    for normals in ("pair", "smooth"):
+        fr = LaggedFriction(t, mesh, v, 0.4, 1e-3, normals=normals)
+        at_vertex = np.any((fr.ids == vertex) & (np.abs(fr.gamma) > 0.5), axis=1)
+        n = fr.normals[at_vertex] * np.sign(fr.normals[at_vertex][:, 2:3])
+        assert len(n) >= 3
+        spread[normals] = np.degrees(np.arccos(np.clip((n @ n.T).min(), -1.0, 1.0)))
+    assert spread["pair"] > 5.0
+    assert spread["smooth"] < 0.05

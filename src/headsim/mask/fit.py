@@ -130,22 +130,19 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   "Friction": each surface vertex's slip counted from where it first touched, normal forces and
   tangent planes refreshed in an outer loop, relaxed where it stops contracting, until no friction
   force moves by more than ``UPDATE_TOL`` x F; stick length as below). Demo configuration, mu = 0.5,
-  cold fits (smoothed tangent planes, adaptive relaxation): 2.5 / 5 / 8 / 10 / 12.5 / 15 / 20 / 30 N in
-  5 / 5 / 12 / 6 / 6 / 12 / 10 / 8 updates and 57 / 92 / 152 / 151 / 212 / 273 / 332 / 415 Newton
-  iterations (10 / 18 / 33 / 32 / 47 / 59 / 85 / 124 s, load ~2); leak 2.0 / 1.3 / 0.26 / 0.12 / 0.23 /
-  0.30 / 0.14 / 0.23 L/min against 6.4 (2.5 N), 18.1 (15 N) and 53.3 (30 N) frictionless; pitch -0.29
+  cold fits (smoothed tangent planes, relaxed outer loop): 2.5 / 5 / 8 / 10 / 12.5 / 15 / 20 / 30 N in
+  5 / 5 / 13 / 6 / 6 / 8 / 10 / 8 updates and 63 / 88 / 149 / 166 / 202 / 241 / 313 / 378 Newton
+  iterations (11 / 18 / 31 / 37 / 43 / 52 / 69 / 87 s, load 1-2); leak 2.0 / 1.3 / 0.26 / 0.12 / 0.24 /
+  0.31 / 0.14 / 0.23 L/min against 6.4 (2.5 N), 18.1 (15 N) and 53.3 (30 N) frictionless; pitch -0.29
   to -5.2 deg against -0.76 / -5.6 / -9.3; at 15 N area 14.2 against 13.4 cm2, peak 68 against
-  74 kPa; at 30 N 17.3 cm2, 126 kPa. Friction keeps the cushion from
-  rolling at the nasal bridge's corners, where the frictionless barrier leaks (below).
-  The plain lagged iteration failed the cold 8 N fit (30 updates): cushion vertices over a skin
-  crease alternated by 270 um, their friction forces by 0.02 N, with ipctk's and with the smoothed
-  tangent planes alike (the lagged map is continuous there, its slope beyond -1; not, as first read,
-  tangent bases switching faces). Relaxed: 12 updates. With ipctk's planes and the relaxation
-  (halving only): 5 / 8 / 12 / 8 updates, 66 / 159 / 256 / 409 iterations at 2.5 / 8 / 15 / 30 N.
-  Not converged yet: the coarse test problem at 25 and 30 N (at 25 N the relaxed loop stalls, the residual
-  alternating 0.020 / 0.031 N against 0.005 N at a skin vertex lying on a cushion edge, whose
-  point-edge pair of negative weight and edge-edge pairs take different smoothed normals, so their
-  friction no longer cancels; :mod:`headsim.solvers.barrier_friction`, "Not settled").
+  74 kPa; at 30 N 17.3 cm2, 127 kPa. Friction keeps the cushion from rolling at the nasal bridge's
+  corners, where the frictionless barrier leaks (below). Coarse test problem (mu = 0.5): converged at
+  5 / 10 / 15 / 20 / 25 / 30 N. The plain lagged iteration failed the cold 8 N demo fit (30 updates):
+  cushion vertices over a skin crease alternated by 270 um, their friction forces by 0.02 N, with
+  ipctk's and with smoothed tangent planes alike (the lagged map's slope beyond -1; not, as first
+  read, tangent bases switching faces). The smoothing rule matters as well: with ipctk's planes the
+  relaxed loop stalled on the coarse problem at 10 and 30 N, with rules that gave the pairs of one
+  point different normals at 10 or at 25-30 N (:mod:`headsim.solvers.barrier_friction`).
   Counting every vertex's slip from the solve's start instead (the usual one-load-step form) made
   the outer loop alternate for 30 updates at 2.5 and 15 N: a cushion vertex over an edge between two
   skin triangles switched its pairs between the two faces, and its approach, counted as slip,

@@ -45,11 +45,11 @@ within dhat, the start -- so the tangential displacement is the two surfaces' re
 they touched (a vertex first seen touching at an update is anchored there). Its force is
 mu lambda_k f1(s) along the slip (Li et al. 2020 eq. 15): the Coulomb force mu lambda_k where the slip
 s exceeds eps (sliding), a stiff, smooth rise from 0 below it (sticking). The tangent planes are
-normal to a smoothed contact normal (``friction_normals="smooth"``: the vertex normals of the
-surface a point projects on, interpolated at its projection; for an edge-edge pair the mean of both
-surfaces'): ipctk's own plane of an edge-edge pair is spanned by edge a and (e_a x e_b) x e_a,
-arbitrary for the nearly parallel edges of a cushion lying on skin (tests/solvers/
-test_barrier_friction.py: up to 65 deg off between two sheets 1e-3 rad apart).
+normal to a smoothed contact normal (``friction_normals="smooth"``: the vertex normals of the first
+contact surface -- the skin in the mask fit -- interpolated at each pair's closest point on it):
+ipctk's own plane of an edge-edge pair is spanned by edge a and (e_a x e_b) x e_a, arbitrary for the
+nearly parallel edges of a cushion lying on skin (tests/solvers/test_barrier_friction.py: up to
+65 deg off between two sheets 1e-3 rad apart).
 
 The lagged data are refreshed by :meth:`BarrierContact.update` (the outer loop of
 :func:`headsim.solvers.solve_quasi_static`) until the friction forces at the solution move by less
@@ -115,7 +115,8 @@ class BarrierContact:
     stiffness : kappa, Pa (the contact pressure scale, module doc)
     friction : Coulomb coefficient mu (0: frictionless); friction_slip : eps, m, the slip below which a
         contact sticks (the regularisation; needed when friction > 0)
-    friction_normals : "smooth" (default) or "pair" (ipctk's tangent planes), module doc "Friction"
+    friction_normals : "smooth" (default: the first contact surface's smoothed normal for every pair) or
+        "pair" (ipctk's tangent planes), module doc "Friction"
     friction_lag : "adaptive" (default: the outer iteration relaxed when it stops contracting) or
         "plain" (module doc)
     threads : ipctk's thread count (a process-wide setting of the IPC Toolkit, set here). 1, the

@@ -27,26 +27,26 @@ where a cushion lies on skin -- e_a x e_b points anywhere in the plane normal to
 ``normals="smooth"`` (the default) takes the tangent plane normal to a *smoothed* contact normal
 instead, as smoothing methods for contact on faceted surfaces do (Puso & Laursen, "A 3D contact
 smoothing method using Gregory patches", IJNME 54 (2002); Wriggers, "Computational Contact
-Mechanics", 2nd ed. 2006, ch. 9): each side's normal is the interpolation, with the pair's
-closest-point weights |gamma_ki|, of that side's area-weighted vertex normals. A point's pair
-(point-triangle, point-edge) takes the normal of the side the point projects on, as node-to-surface
-smoothing does (the point may be a corner of its surface, whose vertex normal says nothing about the
-plane it slides in); an edge-edge (or point-point) pair, which has no such side, the mean of the two
-sides' normals (the second side's turned to face the first's; ipctk's own where the two sides are
-within 84 deg of perpendicular). On a flat surface it is the face normal, i.e. ipctk's point-triangle
-plane. ``normals="pair"`` keeps ipctk's planes (for comparison and for the test that checks this
-implementation against ipctk's FrictionPotential). Where a point crosses an edge between two faces
-of a creased surface, ipctk's friction is continuous as well (the improved-max set blends the two
-faces' pairs through the edge's; measured on a 22.6 deg fold).
+Mechanics", 2nd ed. 2006, ch. 9, the normal of the master surface at the projection point): one of
+the two surfaces is the master -- the contact surface component listed first (the lower connected-
+component label; the skin in the mask fit, whose triangles come first) -- and every pair's normal is
+that surface's area-weighted vertex normals interpolated, with the pair's closest-point weights
+|gamma_k|, at the pair's closest point on it. One smooth normal field for all pairs: continuous
+where a pair moves across an edge, and the same for the pairs of the improved-max set that correct
+each other (a point lying on an edge has a point-edge pair of negative weight and edge-edge pairs
+with the edges at that point, and they must have the same normal for their friction to cancel).
+On a flat master face it is the face normal, i.e. ipctk's point-triangle plane. ``normals="pair"``
+keeps ipctk's planes (for comparison and for the test that checks this implementation against
+ipctk's FrictionPotential). Where a point crosses an edge between two faces of a creased surface,
+ipctk's friction is continuous as well (the improved-max set blends the two faces' pairs through the
+edge's; measured on a 22.6 deg fold).
 
-Not settled: the rule is not consistent between pairs of the improved-max set that correct each other.
-A point lying on an edge has a point-edge pair of negative weight and edge-edge pairs with the edges at
-that point; with the rule above they take different normals, their friction no longer cancels, and on
-the mask fit's coarse test problem (mu = 0.5) the outer friction loop stalled at 25 N on such a point.
-Giving every pair the two sides' combination n_a + (n_a . n_b) n_b (continuous, consistent between
-those pairs) converged there but stalled at 10 N instead; ipctk's planes stalled at 10 and 30 N.
-Measured convergence of the relaxed loop (:mod:`headsim.solvers.barrier`) with this rule: demo mask
-2.5-30 N all, coarse problem 5-20 N, not 25 or 30 N.
+Measured (outer loop of the mask fit's barrier friction relaxed, :mod:`headsim.solvers.barrier`;
+coarse test problem, mu = 0.5, cold fits at 10 / 20 / 25 / 30 N): this rule converged at all four;
+ipctk's planes stalled at 10 and 30 N; per-kind rules stalled where correcting pairs got different
+normals: a point's pair with the normal of the side it projects on and edge-edge pairs with the
+mean of both sides stalled at 25 and 30 N (at 25 N on a skin vertex lying on a cushion edge), the
+two sides' combination n_a + (n_a . n_b) n_b for every pair at 10 N.
 
 The potential depends on the slip only through |P_k r_k|, so no tangent basis is needed. Its Hessian
 in the tangential slip y = P r is f1(s)/s P + (f1'(s) - f1(s)/s) y y^T / s^2, positive semi-definite
@@ -98,10 +98,9 @@ class LaggedFriction:
         self.eps = float(eps)
         self.n_vertices = len(positions)
         edges, faces = mesh.edges, mesh.faces
-        stencils, gammas, coeff, pair_normal, point_pair = [], [], [], [], []
+        stencils, gammas, coeff, pair_normal = [], [], [], []
         for kind in _KINDS:
             for col in getattr(collisions, kind):
-                point_pair.append(kind in ("ev_collisions", "fv_collisions"))
                 ids = np.full(4, -1, dtype=np.int64)
                 vid = [int(i) for i in col.vertex_ids(edges, faces)]
                 ids[: len(vid)] = vid
@@ -119,7 +118,6 @@ class LaggedFriction:
         self.gamma[self.ids < 0] = 0.0
         self.ids[self.ids < 0] = 0
         self.coeff = np.array(coeff, dtype=np.float64).reshape(k)  # w mu lambda, N
-        self.point_pair = np.array(point_pair, dtype=bool).reshape(k)  # point-triangle / point-edge
         own = np.array(pair_normal, dtype=np.float64).reshape(k, 3)
         own /= np.maximum(np.linalg.norm(own, axis=1, keepdims=True), 1e-300)
         if normals == "smooth" and k:
@@ -138,25 +136,26 @@ class LaggedFriction:
         return len(self.coeff)
 
     def _smoothed_normals(self, x, faces, own) -> np.ndarray:
-        """(k, 3) smoothed contact normals (module doc): for a point-triangle or point-edge pair the
-        triangle's or edge's vertex normals interpolated at the point's projection; for an edge-edge or
-        point-point pair the mean of the two sides' (the second side's turned to face the first's,
-        whatever the orientation of the surfaces); the pair's own normal ``own`` where that mean is
-        ill-defined (two sides at right angles) or a side has no normal."""
-        vn = vertex_normals(x, faces)[self.ids]  # (k, 4, 3)
-        side = []
-        for w in (np.where(self.gamma > 0, self.gamma, 0.0), np.where(self.gamma < 0, -self.gamma, 0.0)):
-            s = np.einsum("ki,kij->kj", w, vn)
-            side.append(s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300))
-        cos = np.einsum("kj,kj->k", side[0], side[1])
-        n = side[0] + np.sign(cos)[:, None] * side[1]
-        ok = np.abs(cos) > 0.1
-        # a point's pair: the side it projects on (stencil slots 1.., ipctk puts the point first)
-        master = np.where((self.gamma[:, 0] > 0)[:, None], side[1], side[0])
-        n = np.where(self.point_pair[:, None], master, n)
-        ok = np.where(self.point_pair, np.linalg.norm(master, axis=1) > 0.5, ok)
+        """(k, 3) smoothed contact normals (module doc): the vertex normals of the pair's side on the
+        first surface component (the lower component label) interpolated at its closest point; the
+        pair's own normal ``own`` where that side has no normal."""
+        from scipy.sparse.csgraph import connected_components
+
+        f = np.asarray(faces, dtype=np.int64)
+        n_v = len(x)
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_v, n_v))
+        label = connected_components(graph, directed=False)[1]
+        vn = vertex_normals(x, f)[self.ids]  # (k, 4, 3)
+        big = np.iinfo(np.int64).max
+        lab = label[self.ids].astype(np.int64)
+        side_a = np.where(self.gamma > 0, lab, big).min(axis=1)
+        side_b = np.where(self.gamma < 0, lab, big).min(axis=1)
+        on_master = np.where((side_a <= side_b)[:, None], self.gamma > 0, self.gamma < 0)
+        w = np.where(on_master, np.abs(self.gamma), 0.0)
+        n = np.einsum("ki,kij->kj", w, vn)
         length = np.linalg.norm(n, axis=1, keepdims=True)
-        return np.where(ok[:, None], n / np.maximum(length, 1e-300), own)
+        return np.where(length > 1e-12, n / np.maximum(length, 1e-300), own)
 
     # -- the slip of each pair -------------------------------------------------------------------
     def _tangential_slip(self, u):
