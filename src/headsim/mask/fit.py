@@ -132,7 +132,8 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   force moves by more than ``UPDATE_TOL`` x F; stick length as below). Demo configuration, mu = 0.5,
   cold fits (smoothed tangent planes, relaxed outer loop): 2.5 / 5 / 8 / 10 / 12.5 / 15 / 20 / 30 N in
   5 / 5 / 13 / 6 / 6 / 8 / 10 / 8 updates and 63 / 88 / 149 / 166 / 202 / 241 / 313 / 378 Newton
-  iterations (11 / 18 / 31 / 37 / 43 / 52 / 69 / 87 s, load 1-2); leak 2.0 / 1.3 / 0.26 / 0.12 / 0.24 /
+  iterations (11 / 18 / 31 / 37 / 43 / 52 / 69 / 87 s, load 1-2; ``benchmarks/bench_mask_friction.py
+  --forces 2.5,5,8,10,12.5,15,20,30``); leak 2.0 / 1.3 / 0.26 / 0.12 / 0.24 /
   0.31 / 0.14 / 0.23 L/min against 6.4 (2.5 N), 18.1 (15 N) and 53.3 (30 N) frictionless; pitch -0.29
   to -5.2 deg against -0.76 / -5.6 / -9.3; at 15 N area 14.2 against 13.4 cm2, peak 68 against
   74 kPa; at 30 N 17.3 cm2, 127 kPa. Friction keeps the cushion from rolling at the nasal bridge's

@@ -42,7 +42,8 @@ ipctk's friction is continuous as well (the improved-max set blends the two face
 edge's; measured on a 22.6 deg fold).
 
 Measured (outer loop of the mask fit's barrier friction relaxed, :mod:`headsim.solvers.barrier`;
-coarse test problem, mu = 0.5, cold fits at 10 / 20 / 25 / 30 N): this rule converged at all four;
+coarse test problem, mu = 0.5, cold fits at 10 / 20 / 25 / 30 N; ``benchmarks/bench_mask_friction.py
+--problem coarse --forces 10,20,25,30 --compare``): this rule converged at all four;
 ipctk's planes stalled at 10 and 30 N; per-kind rules stalled where correcting pairs got different
 normals: a point's pair with the normal of the side it projects on and edge-edge pairs with the
 mean of both sides stalled at 25 and 30 N (at 25 N on a skin vertex lying on a cushion edge), the
