@@ -154,7 +154,7 @@ def test_barrier_with_friction_reaches_the_contact_term():
     assert contact.tolerance == pytest.approx(UPDATE_TOL * 15.0)
 
 
-def test_barrier_friction_converges_where_the_plain_lagged_iteration_cycles(monkeypatch):
+def test_barrier_friction_converges_where_the_plain_lagged_iteration_cycles(monkeypatch, tmp_path):
     """Coarse problem, mu = 0.5, 10 N: the plain lagged friction iteration (take the lagged normal
     forces and tangent planes at the last solution) does not settle within the fit's 30 outer
     updates; the relaxed one (BarrierContact friction_lag="adaptive", the default) converges, and its
@@ -162,6 +162,7 @@ def test_barrier_friction_converges_where_the_plain_lagged_iteration_cycles(monk
     skin stay inside Coulomb's cone of the barrier's normal forces in total."""
     from headsim.errors import ConvergenceError
     from headsim.mask.fit import problem_fit
+    from headsim.mask.report import write_fit_report
     from headsim.solvers import barrier
 
     from headsim.mask import fit as fit_module
@@ -185,6 +186,8 @@ def test_barrier_friction_converges_where_the_plain_lagged_iteration_cycles(monk
     normal = contact.vertex_forces(x, np.zeros(0))[p.skin_vertices] - friction
     assert np.linalg.norm(friction.sum(axis=0)) > 0.01 * np.linalg.norm(normal.sum(axis=0))  # friction acts
     assert np.linalg.norm(friction.sum(axis=0)) <= 0.5 * np.linalg.norm(normal.sum(axis=0))
+    write_fit_report(tmp_path, p, fit)  # the report names the friction it was computed with
+    assert "Coulomb friction mu = 0.5" in (tmp_path / "report.html").read_text()
 
     plain_init = barrier.BarrierContact.__init__
 

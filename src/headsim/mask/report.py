@@ -134,6 +134,12 @@ def _numbers(problem: FitProblem, fit: FitResult, search: SearchResult | None) -
          f"contact layer {problem.options.contact_layer * 1e6:.0f} um)" if problem.options.contact == "barrier" else
          "nonlinear FEM contact (finite strain, penalty on lagged cushion planes)"),
     ]
+    if getattr(fit, "mode", "nonlinear") != "condensed":
+        friction = problem.options.friction
+        rows.append(("skin-cushion contact",
+                     (f"Coulomb friction mu = {friction:g} (lagged, regularised)" if friction > 0 else "frictionless")
+                     + "; mask " + ("free to turn on its strap (pitch, yaw)" if problem.options.rotate
+                                    else "orientation held by the headgear")))
     return rows
 
 
