@@ -195,3 +195,18 @@ def test_friction_lag_is_relaxed_when_the_outer_residual_stops_falling():
             at_prev = at
     with pytest.raises(ParameterError, match="friction_lag"):
         BarrierContact(v, tri, 1e-3, 1.0, friction=0.5, friction_slip=1e-6, friction_lag="aitken")
+
+
+def test_pieces_of_one_body_do_not_repel_each_other():
+    """Two triangles 0.3 dhat apart that do not share a vertex: as separate connected components (the
+    default) they are two bodies and the barrier pushes them apart; labelled as one body (``bodies``,
+    e.g. a cropped skin that fell into pieces) they do not interact at all."""
+    dhat = 1e-3
+    v, tri = _vertex_over_plate(0.3 * dhat)
+    apart = BarrierContact(v, tri, dhat, 1.0)
+    assert apart.energy(v, np.zeros(0)) > 0 and apart.vertex_forces(v, np.zeros(0))[3, 2] > 0
+    one = BarrierContact(v, tri, dhat, 1.0, bodies=np.zeros(len(v), dtype=int))
+    assert one.energy(v, np.zeros(0)) == 0.0 and not one.vertex_forces(v, np.zeros(0)).any()
+    assert one.minimum_distance(v) == np.inf and not one.vertices_within(v, dhat).any()
+    with pytest.raises(ParameterError, match="bodies"):
+        BarrierContact(v, tri, dhat, 1.0, bodies=np.zeros(3, dtype=int))

@@ -657,8 +657,14 @@ class FitProblem:
 
     @property
     def contact_surfaces(self) -> np.ndarray:
-        """(t, 3) model ids of the skin and mask surfaces (the barrier contact's two components)."""
+        """(t, 3) model ids of the skin and mask surfaces (the barrier contact's two bodies)."""
         return np.vstack([self.tissue_triangles, self.mask_surface])
+
+    @property
+    def contact_bodies(self) -> np.ndarray:
+        """(n,) int per model vertex: 0 tissue, 1 mask (the barrier contact's bodies; the cropped
+        skin may fall into several pieces, which must not repel each other)."""
+        return (np.arange(self.n_vertices) >= self.n_tissue).astype(np.int64)
 
     def describe(self) -> dict:
         return {
@@ -869,7 +875,8 @@ def barrier_start_offset(vertices: np.ndarray, triangles: np.ndarray, n_tissue: 
     still cross the skin off the axis (steep skin beside the nose)."""
     from headsim.solvers.barrier import BarrierContact
 
-    probe = BarrierContact(vertices, triangles, dhat, 1.0)
+    probe = BarrierContact(vertices, triangles, dhat, 1.0,
+                           bodies=(np.arange(len(vertices)) >= n_tissue).astype(np.int64))
     shift = 0.0
     for _ in range(60):
         x = vertices.copy()
@@ -1025,7 +1032,7 @@ def _contact_terms(problem: FitProblem, rest_shell: np.ndarray, tolerance: float
         from headsim.solvers.barrier import BarrierContact
 
         contact = BarrierContact(p.model.rest_positions, p.contact_surfaces, p.options.contact_layer,
-                                 p.barrier_stiffness, friction=mu, friction_slip=slip)
+                                 p.barrier_stiffness, friction=mu, friction_slip=slip, bodies=p.contact_bodies)
     else:
         contact = AxialContact(p.skin_vertices, p.skin_areas, p.mask_contact, p.penalty, friction=mu,
                                friction_slip=slip)
@@ -1083,7 +1090,7 @@ def _crosses(problem: FitProblem, positions: np.ndarray) -> bool:
     from headsim.solvers.barrier import BarrierContact
 
     probe = BarrierContact(problem.model.rest_positions, problem.contact_surfaces,
-                           problem.options.contact_layer, 1.0)
+                           problem.options.contact_layer, 1.0, bodies=problem.contact_bodies)
     return probe.intersecting(positions)
 
 

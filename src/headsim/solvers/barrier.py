@@ -109,8 +109,12 @@ class BarrierContact:
 
     n_vertices : vertices of the model (the contact acts on ``triangles``' vertices only)
     rest_positions : (n, 3) m, the area weights are taken here
-    triangles : (t, 3) int model vertex ids of the contact surfaces; pairs within one connected
-        component of these triangles never interact (no self-contact), pairs of different components do
+    triangles : (t, 3) int model vertex ids of the contact surfaces; pairs within one body never
+        interact (no self-contact), pairs of different bodies do
+    bodies : (n,) int body label per model vertex (e.g. 0 skin, 1 mask); None: every connected
+        component of ``triangles`` is a body. A cropped skin can fall into several pieces that lie
+        closer than dhat to each other: as separate bodies they would repel (the mask fit on
+        identity000 of the bundled faces: two skin pieces 20 um apart, no admissible start)
     dhat : m, barrier activation distance (thickness of the contact layer)
     stiffness : kappa, Pa (the contact pressure scale, module doc)
     friction : Coulomb coefficient mu (0: frictionless); friction_slip : eps, m, the slip below which a
@@ -133,7 +137,7 @@ class BarrierContact:
 
     def __init__(self, rest_positions: np.ndarray, triangles: np.ndarray, dhat: float, stiffness: float,
                  threads: int | None = 1, friction: float = 0.0, friction_slip: float | None = None,
-                 friction_normals: str = "smooth", friction_lag: str = "adaptive"):
+                 friction_normals: str = "smooth", friction_lag: str = "adaptive", bodies: np.ndarray | None = None):
         import ipctk
 
         if threads is not None:
@@ -171,7 +175,9 @@ class BarrierContact:
         edges = np.asfortranarray(ipctk.edges(faces))
         self._ipc = ipctk
         self.mesh = ipctk.CollisionMesh(np.asfortranarray(x[self.ids]), edges, faces)
-        self.mesh.can_collide = ipctk.make_connected_components_filter(faces)
+        self.body = self._body_labels(faces, bodies)  # per contact vertex
+        filt = np.concatenate([faces, self._body_links()]).astype(np.int32)
+        self.mesh.can_collide = ipctk.make_connected_components_filter(np.asfortranarray(filt))
         self.areas = np.asarray(self.mesh.vertex_areas, dtype=np.float64).copy()  # m^2 per contact vertex
         self.potential = ipctk.BarrierPotential(ipctk.NormalizedClampedLogBarrier(), self.dhat, self.stiffness, True)
         self._frictional = self.mu > 0
@@ -180,6 +186,31 @@ class BarrierContact:
         self._key = None
         self._collisions = None
         self.n_drivers = 0
+
+    def _body_labels(self, faces, bodies) -> np.ndarray:
+        """(k,) int body of every contact vertex: ``bodies`` where given (per model vertex), else the
+        connected component of the contact triangles."""
+        from scipy.sparse.csgraph import connected_components
+
+        if bodies is not None:
+            bodies = np.asarray(bodies)
+            if bodies.shape != (self.n,):
+                raise ParameterError(f"bodies must give one label per model vertex ({self.n}), got {bodies.shape}")
+            return np.unique(bodies[self.ids], return_inverse=True)[1].astype(np.int64)
+        f = np.asarray(faces, dtype=np.int64)
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        k = len(self.ids)
+        graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(k, k))
+        return connected_components(graph, directed=False)[1].astype(np.int64)
+
+    def _body_links(self) -> np.ndarray:
+        """(m, 3) degenerate triangles (a, b, b) that chain the contact vertices of each body, so that
+        ipctk's connected-components filter sees one component per body."""
+        links = [np.zeros((0, 3), dtype=np.int64)]
+        for b in np.unique(self.body):
+            members = np.flatnonzero(self.body == b)
+            links.append(np.stack([members[:-1], members[1:], members[1:]], axis=1))
+        return np.concatenate(links)
 
     # -- contact pairs at a configuration (cached for the last positions) -----------------------
     def _surface(self, x: np.ndarray) -> np.ndarray:
@@ -272,7 +303,7 @@ class BarrierContact:
         t = self._ipc.TangentialCollisions()
         if len(c):
             t.build(self.mesh, v, c, self.potential, self.mu)
-        self._tangential = LaggedFriction(t, self.mesh, v, self.mu, self.eps, self.friction_normals)
+        self._tangential = LaggedFriction(t, self.mesh, v, self.mu, self.eps, self.friction_normals, body=self.body)
         # the slip of a vertex counts from where it first touched (module doc); vertices that touch now
         # without a recorded first touch are anchored here
         self._note_first_touch(x)

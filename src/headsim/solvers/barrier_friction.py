@@ -91,7 +91,8 @@ class LaggedFriction:
     matrix in N/m over the surface dofs (x, y, z per vertex).
     """
 
-    def __init__(self, collisions, mesh, positions: np.ndarray, mu: float, eps: float, normals: str = "smooth"):
+    def __init__(self, collisions, mesh, positions: np.ndarray, mu: float, eps: float, normals: str = "smooth",
+                 body: np.ndarray | None = None):
         if normals not in ("smooth", "pair"):
             raise ParameterError(f"friction normals must be 'smooth' or 'pair', got {normals!r}")
         if not (mu >= 0 and eps > 0):
@@ -122,7 +123,7 @@ class LaggedFriction:
         own = np.array(pair_normal, dtype=np.float64).reshape(k, 3)
         own /= np.maximum(np.linalg.norm(own, axis=1, keepdims=True), 1e-300)
         if normals == "smooth" and k:
-            n = self._smoothed_normals(np.asarray(positions, dtype=np.float64), np.asarray(faces), own)
+            n = self._smoothed_normals(np.asarray(positions, dtype=np.float64), np.asarray(faces), own, body)
         else:
             n = own
         self.normals = n
@@ -136,17 +137,21 @@ class LaggedFriction:
     def __len__(self) -> int:
         return len(self.coeff)
 
-    def _smoothed_normals(self, x, faces, own) -> np.ndarray:
+    def _smoothed_normals(self, x, faces, own, body=None) -> np.ndarray:
         """(k, 3) smoothed contact normals (module doc): the vertex normals of the pair's side on the
-        first surface component (the lower component label) interpolated at its closest point; the
-        pair's own normal ``own`` where that side has no normal."""
+        first body (the lower label of ``body``, per surface vertex; default: the connected components
+        of ``faces``) interpolated at its closest point; the pair's own normal ``own`` where that side
+        has no normal."""
         from scipy.sparse.csgraph import connected_components
 
         f = np.asarray(faces, dtype=np.int64)
         n_v = len(x)
-        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_v, n_v))
-        label = connected_components(graph, directed=False)[1]
+        if body is None:
+            edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+            graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_v, n_v))
+            label = connected_components(graph, directed=False)[1]
+        else:
+            label = np.asarray(body)
         vn = vertex_normals(x, f)[self.ids]  # (k, 4, 3)
         big = np.iinfo(np.int64).max
         lab = label[self.ids].astype(np.int64)
