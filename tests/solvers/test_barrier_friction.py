@@ -7,7 +7,8 @@ import pytest
 
 ipctk = pytest.importorskip("ipctk")
 
-from headsim.solvers.barrier_friction import LaggedFriction, vertex_normals  # noqa: E402
+from headsim.mesh.geometry import vertex_normals  # noqa: E402
+from headsim.solvers.barrier_friction import LaggedFriction  # noqa: E402
 
 DHAT = 0.05
 CREASE = 0.2  # z = CREASE |x|: a 22.6 deg fold along x = 0
@@ -58,7 +59,7 @@ def test_with_the_pairs_own_planes_it_is_ipctks_friction_potential(scale):
     assert min(len(t.fv_collisions), len(t.ev_collisions), len(t.ee_collisions)) > 0
     eps = 1e-3
     u = np.asfortranarray(np.random.default_rng(1).normal(size=v.shape) * scale)
-    ours = LaggedFriction(t, mesh, v, 0.4, eps, normals="pair")
+    ours = LaggedFriction(t, mesh, v, eps, normals="pair")
     ref = ipctk.FrictionPotential(eps)
     assert ours.energy(u) == pytest.approx(ref(t, mesh, u), rel=1e-12)
     g_ref = ref.gradient(t, mesh, u)
@@ -71,7 +72,7 @@ def test_smoothed_potential_gradient_and_hessian_are_its_derivatives():
     v, f = _two_creased_sheets()
     mesh = _mesh(v, f)
     rng = np.random.default_rng(2)
-    fr = LaggedFriction(_tangential(mesh, v), mesh, v, 0.4, 1e-3)
+    fr = LaggedFriction(_tangential(mesh, v), mesh, v, 1e-3)
     for scale in (3e-4, 5e-3):
         u = rng.normal(size=v.shape) * scale
         d = rng.normal(size=v.shape) * 1e-7
@@ -106,7 +107,7 @@ def test_between_two_nearly_parallel_sheets_the_smoothed_planes_are_the_sheets()
     u[len(v1):] = [0, 1e-2, 0]  # the upper sheet slides across the edges (sliding: 1e-2 >> eps)
     tilt_deg = {}
     for normals in ("pair", "smooth"):
-        fr = LaggedFriction(t, mesh, v, 0.4, 1e-3, normals=normals)
+        fr = LaggedFriction(t, mesh, v, 1e-3, normals=normals)
         tilt_deg[normals] = np.degrees(np.arccos(np.clip(np.abs(fr.normals[:, 2]), 0, 1)))
         if normals == "smooth":
             force = -fr.gradient(u)[len(v1):].sum(axis=0)
@@ -130,7 +131,7 @@ def test_on_a_flat_face_the_smoothed_normal_is_the_face_normal():
     mesh = _mesh(v, f)
     t = _tangential(mesh, v)
     assert len(t.fv_collisions) > 0
-    pair, smooth = (LaggedFriction(t, mesh, v, 0.4, 1e-3, normals=m).normals for m in ("pair", "smooth"))
+    pair, smooth = (LaggedFriction(t, mesh, v, 1e-3, normals=m).normals for m in ("pair", "smooth"))
     assert np.abs(np.abs(smooth @ face_normal) - 1.0).max() <= 1e-12
     n_ev_ee = len(t.vv_collisions) + len(t.ev_collisions) + len(t.ee_collisions)
     fv = slice(n_ev_ee, None)  # LaggedFriction orders the pairs vv, ev, ee, fv
@@ -167,7 +168,7 @@ def test_the_pairs_at_one_point_share_the_smoothed_normal():
     t = _tangential(mesh, v)
     spread = {}
     for normals in ("pair", "smooth"):
-        fr = LaggedFriction(t, mesh, v, 0.4, 1e-3, normals=normals)
+        fr = LaggedFriction(t, mesh, v, 1e-3, normals=normals)
         at_vertex = np.any((fr.ids == vertex) & (np.abs(fr.gamma) > 0.5), axis=1)
         n = fr.normals[at_vertex] * np.sign(fr.normals[at_vertex][:, 2:3])
         assert len(n) >= 3

@@ -112,11 +112,8 @@ def contact_consistency(problem, result) -> ContactConsistency:
     dist = cushion.closest_points(skin).distance
     depth = np.where(inside, dist, 0.0)
     if p.options.contact == "barrier":
-        from headsim.solvers.barrier import BarrierContact
-
         tolerance = CONSISTENCY_EDGE_FRACTION * p.skin_edge
-        probe = BarrierContact(p.model.rest_positions, p.contact_surfaces, tolerance, 1.0, bodies=p.contact_bodies)
-        touching = probe.vertices_within(x, tolerance)[p.skin_vertices]
+        touching = p.barrier_probe(tolerance).vertices_within(x, tolerance)[p.skin_vertices]
         excess = depth  # the barrier's pressure stands for a gap > 0, never for a depth
         phantom = (~inside) & (pressure > 0) & ~touching
     else:

@@ -666,6 +666,13 @@ class FitProblem:
         skin may fall into several pieces, which must not repel each other)."""
         return (np.arange(self.n_vertices) >= self.n_tissue).astype(np.int64)
 
+    def barrier_probe(self, dhat: float):
+        """A frictionless :class:`headsim.solvers.barrier.BarrierContact` of skin and mask (unit
+        stiffness) for geometric queries: crossings, distances, primitives closer than ``dhat`` (m)."""
+        from headsim.solvers.barrier import BarrierContact
+
+        return BarrierContact(self.model.rest_positions, self.contact_surfaces, dhat, 1.0, bodies=self.contact_bodies)
+
     def describe(self) -> dict:
         return {
             "face": self.face.name, "mask": self.mask.name, "face_vertices": int(self.face.n_vertices),
@@ -1087,11 +1094,7 @@ def fit_mask(face_or_problem: SurfaceMesh | FitProblem, mask: MaskModel | None =
 
 def _crosses(problem: FitProblem, positions: np.ndarray) -> bool:
     """True when skin and mask surfaces cross at ``positions`` (an inadmissible barrier start)."""
-    from headsim.solvers.barrier import BarrierContact
-
-    probe = BarrierContact(problem.model.rest_positions, problem.contact_surfaces,
-                           problem.options.contact_layer, 1.0, bodies=problem.contact_bodies)
-    return probe.intersecting(positions)
+    return problem.barrier_probe(problem.options.contact_layer).intersecting(positions)
 
 
 def problem_fit(problem: FitProblem, force: float, *, warm_start: FitState | None = None,

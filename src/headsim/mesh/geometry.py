@@ -129,6 +129,16 @@ def vertex_adjacency(n_vertices: int, edges: np.ndarray) -> sp.csr_matrix:
     return adj
 
 
+def vertex_components(n_vertices: int, triangles: np.ndarray) -> np.ndarray:
+    """(n,) int64 label of the connected component (through the triangles' edges) of every vertex;
+    a vertex without a triangle is a component of its own. Labels are numbered in order of their
+    lowest vertex."""
+    from scipy.sparse.csgraph import connected_components
+
+    edges = unique_edges(triangles)[0] if len(triangles) else np.zeros((0, 2), np.int64)
+    return connected_components(vertex_adjacency(n_vertices, edges), directed=False)[1].astype(np.int64)
+
+
 def tet_signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(m,) float64, m^3: det[b-a, c-a, d-a] / 6 (positive for positively oriented tets)."""
     a = vertices[tets[:, 0]]

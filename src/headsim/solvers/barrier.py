@@ -71,6 +71,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from headsim.errors import ParameterError
+from headsim.mesh.geometry import vertex_components
 from headsim.solvers.barrier_friction import LaggedFriction
 
 
@@ -190,18 +191,12 @@ class BarrierContact:
     def _body_labels(self, faces, bodies) -> np.ndarray:
         """(k,) int body of every contact vertex: ``bodies`` where given (per model vertex), else the
         connected component of the contact triangles."""
-        from scipy.sparse.csgraph import connected_components
-
-        if bodies is not None:
-            bodies = np.asarray(bodies)
-            if bodies.shape != (self.n,):
-                raise ParameterError(f"bodies must give one label per model vertex ({self.n}), got {bodies.shape}")
-            return np.unique(bodies[self.ids], return_inverse=True)[1].astype(np.int64)
-        f = np.asarray(faces, dtype=np.int64)
-        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        k = len(self.ids)
-        graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(k, k))
-        return connected_components(graph, directed=False)[1].astype(np.int64)
+        if bodies is None:
+            return vertex_components(len(self.ids), faces)
+        bodies = np.asarray(bodies)
+        if bodies.shape != (self.n,):
+            raise ParameterError(f"bodies must give one label per model vertex ({self.n}), got {bodies.shape}")
+        return np.unique(bodies[self.ids], return_inverse=True)[1].astype(np.int64)
 
     def _body_links(self) -> np.ndarray:
         """(m, 3) degenerate triangles (a, b, b) that chain the contact vertices of each body, so that
@@ -303,7 +298,7 @@ class BarrierContact:
         t = self._ipc.TangentialCollisions()
         if len(c):
             t.build(self.mesh, v, c, self.potential, self.mu)
-        self._tangential = LaggedFriction(t, self.mesh, v, self.mu, self.eps, self.friction_normals, body=self.body)
+        self._tangential = LaggedFriction(t, self.mesh, v, self.eps, self.friction_normals, body=self.body)
         # the slip of a vertex counts from where it first touched (module doc); vertices that touch now
         # without a recorded first touch are anchored here
         self._note_first_touch(x)

@@ -64,39 +64,28 @@ import numpy as np
 import scipy.sparse as sp
 
 from headsim.errors import ParameterError
+from headsim.mesh.geometry import vertex_components, vertex_normals
 
 _KINDS = ("vv_collisions", "ev_collisions", "ee_collisions", "fv_collisions")
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(n, 3) unit area-weighted vertex normals of a triangle surface (zero rows for vertices without
-    a face). vertices : (n, 3) m; faces : (t, 3) int."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 x area x unit normal
-    n = np.zeros_like(v)
-    for c in range(3):
-        np.add.at(n, f[:, c], fn)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 class LaggedFriction:
     """The friction potential D(u) of the module doc over ipctk ``TangentialCollisions`` taken at the
     surface positions ``positions`` (k, 3) m of ``mesh`` (an ipctk CollisionMesh).
 
-    mu : Coulomb coefficient; eps : m, the slip below which a pair sticks; normals : "smooth" (module
-    doc) or "pair" (ipctk's tangent planes). :meth:`energy`, :meth:`gradient` and :meth:`hessian` take
+    eps : m, the slip below which a pair sticks (the Coulomb coefficient is the collisions' own, set
+    when ipctk built them); normals : "smooth" (module doc) or "pair" (ipctk's tangent planes); body :
+    (k,) int body label per surface vertex (default: the connected components of the mesh's faces). :meth:`energy`, :meth:`gradient` and :meth:`hessian` take
     the surface displacement u (k, 3) m; the gradient is (k, 3) N, the Hessian a (3k, 3k) sparse
     matrix in N/m over the surface dofs (x, y, z per vertex).
     """
 
-    def __init__(self, collisions, mesh, positions: np.ndarray, mu: float, eps: float, normals: str = "smooth",
+    def __init__(self, collisions, mesh, positions: np.ndarray, eps: float, normals: str = "smooth",
                  body: np.ndarray | None = None):
         if normals not in ("smooth", "pair"):
             raise ParameterError(f"friction normals must be 'smooth' or 'pair', got {normals!r}")
-        if not (mu >= 0 and eps > 0):
-            raise ParameterError(f"friction needs mu >= 0 and eps > 0, got {mu}, {eps}")
+        if not eps > 0:
+            raise ParameterError(f"friction needs a slip length eps > 0, got {eps}")
         self.eps = float(eps)
         self.n_vertices = len(positions)
         edges, faces = mesh.edges, mesh.faces
@@ -142,19 +131,11 @@ class LaggedFriction:
         first body (the lower label of ``body``, per surface vertex; default: the connected components
         of ``faces``) interpolated at its closest point; the pair's own normal ``own`` where that side
         has no normal."""
-        from scipy.sparse.csgraph import connected_components
-
         f = np.asarray(faces, dtype=np.int64)
-        n_v = len(x)
-        if body is None:
-            edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-            graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_v, n_v))
-            label = connected_components(graph, directed=False)[1]
-        else:
-            label = np.asarray(body)
+        label = vertex_components(len(x), f) if body is None else np.asarray(body, dtype=np.int64)
         vn = vertex_normals(x, f)[self.ids]  # (k, 4, 3)
         big = np.iinfo(np.int64).max
-        lab = label[self.ids].astype(np.int64)
+        lab = label[self.ids]
         side_a = np.where(self.gamma > 0, lab, big).min(axis=1)
         side_b = np.where(self.gamma < 0, lab, big).min(axis=1)
         on_master = np.where((side_a <= side_b)[:, None], self.gamma > 0, self.gamma < 0)
@@ -188,7 +169,7 @@ class LaggedFriction:
         if not len(self):
             return g
         y, s = self._tangential_slip(u)
-        t = (self.coeff * self._f1_over_s(s))[:, None] * y  # (k, 3): the pair's friction force magnitude along y
+        t = (self.coeff * self._f1_over_s(s))[:, None] * y  # (k, 3): the pair's gradient w.r.t. its slip r
         np.add.at(g, self.ids, self.gamma[:, :, None] * t[:, None, :])
         return g
 

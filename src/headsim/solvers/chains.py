@@ -783,6 +783,22 @@ def _kernel_rows(rows: _Rows) -> tuple[np.ndarray, int]:
 
 
 
+def _chain_offsets(jk: np.ndarray, jl: np.ndarray) -> np.ndarray:
+    """(c + 1,) int64 start of every chain in the joint rows (k, l) of :meth:`ChainSolver._joint_rows` (a
+    chain continues where a row's k is the previous row's l), and the row count."""
+    start = np.ones(len(jk), bool)
+    start[1:] = jk[1:] != jl[:-1]
+    return np.append(np.nonzero(start)[0], len(jk)).astype(np.int64)
+
+
+def _spin_carried(w: np.ndarray, R: np.ndarray, R_mid: np.ndarray, inertia: np.ndarray) -> np.ndarray:
+    """(S, 3) rad/s: the world angular velocity at the orientations R_mid that keeps the world angular
+    momentum R I Rᵀ w of angular velocity w at the orientations R (torque-free rotation, body inertia
+    ``inertia`` (S, 3) kg m²)."""
+    momentum = np.einsum("sac,sc,sbc,sb->sa", R, inertia, R, w)
+    return np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / inertia, R_mid, momentum)
+
+
 def _fibre_domains(fa: np.ndarray, fb: np.ndarray, n_fibres: int, n_domains: int) -> np.ndarray:
     """(n_fibres,) int64 domain 0 … n_domains − 1 of every fibre, for the parallel contact sweep of the coupled
     solve (``ChainOptions.contact_domains``): recursive bisection of the fibre contact graph (fa, fb: the
@@ -1200,9 +1216,7 @@ class ChainSolver:
         kk = np.maximum(jk, 0)
         uk = np.where((jk >= 0)[:, None], u[kk, :3] + np.cross(u[kk, 3:], jrk), 0.0)
         jt = np.ascontiguousarray(uk - (u[jl, :3] + np.cross(u[jl, 3:], jrl)))
-        chain_start = np.ones(len(jk), bool)
-        chain_start[1:] = jk[1:] != jl[:-1]
-        chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
+        chain_off = _chain_offsets(jk, jl)
         n = len(act)
         lam_out, fr_out = np.zeros(n), np.zeros((n, 2))
         par = model.n_segments >= o.parallel_threshold
@@ -1244,9 +1258,7 @@ class ChainSolver:
             if ps is None or ps[0] is not rows or ps[1] != pass_key:  # once per harmonisation pass
                 jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt,
                                                                  u_minus if u_spring is None else u_spring)
-                chain_start = np.ones(len(jk), bool)
-                chain_start[1:] = jk[1:] != jl[:-1]
-                chain_off = np.append(np.nonzero(chain_start)[0], len(jk)).astype(np.int64)
+                chain_off = _chain_offsets(jk, jl)
                 joints = (jk, jl, jrk, jrl, jt, jc, jw0, chain_off)
                 mass, inertia = self._writable(model.mass), self._writable(model.inertia)
                 setup = (KC.coupled_setup_parallel if par else KC.coupled_setup)(
@@ -1338,8 +1350,7 @@ class ChainSolver:
                 vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra)
                 half_step(x, R, vJ0, wJ0, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
                 w_hs = w_mid
-                Lw = np.einsum("sac,sc,sbc,sb->sa", R, model.inertia, R, wJ)
-                w_mid = np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / model.inertia, R_mid, Lw)
+                w_mid = _spin_carried(wJ, R, R_mid, model.inertia)
             elif it > 0 and o.half_step_projection and vel_impulses is not None:
                 # no closing velocity into the contacts of the previous pass (see the option's notes)
                 uh = self._half_step_projection(model, rows, vel_impulses[0], gaps0, x, R, x_mid, R_mid, vJ, wJ,
@@ -1348,8 +1359,7 @@ class ChainSolver:
                 projected = True
                 half_step(x, R, np.ascontiguousarray(uh[:, :3]), np.ascontiguousarray(uh[:, 3:]), model.inertia,
                           0.5 * dt, x_mid, R_mid, w_hs)
-                Lw = np.einsum("sac,sc,sbc,sb->sa", R, model.inertia, R, wJ)
-                w_mid = np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / model.inertia, R_mid, Lw)
+                w_mid = _spin_carried(wJ, R, R_mid, model.inertia)
             else:
                 half_step(x, R, vJ, wJ, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
                 w_hs = w_mid
