@@ -145,8 +145,6 @@ def test_barrier_friction_above_the_coulomb_limit_has_no_static_equilibrium():
 
 
 def test_barrier_friction_needs_a_slip_length():
-    from headsim.errors import ParameterError
-
     v, tri = _vertex_over_plate(0.1)
     with pytest.raises(ParameterError, match="friction_slip"):
         BarrierContact(v, tri, 1e-3, 1.0, friction=0.3)
