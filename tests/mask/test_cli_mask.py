@@ -113,3 +113,27 @@ def test_bad_mode_gives_exit_2_and_no_output(tmp_path, capsys):
     code, _, err = _run(["mask", "fit", "--mode", "linear", "--out", str(out)], capsys)
     assert code == 2 and "--mode" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("workers", ["0", "two", "-1"])
+def test_bad_workers_give_exit_2_and_no_output(tmp_path, capsys, workers):
+    out = tmp_path / "search"
+    code, _, err = _run(["mask", "seal-force", "--workers", workers, "--out", str(out)], capsys)
+    assert code == 2 and "--workers must be 'auto' or an integer >= 1" in err
+    assert not out.exists()
+
+
+def test_auto_workers_use_two_cores_for_the_barrier_search_only(monkeypatch):
+    """``--workers auto``: two fits at a time for the barrier contact's nonlinear search on >= 2 cores;
+    one for the planes contact (warm-start dependent) and the condensed mode (0.1 s fits)."""
+    import os
+
+    from headsim.cli.mask_cmd import search_workers
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    assert search_workers("auto", "barrier", "nonlinear") == 2
+    assert search_workers("auto", "planes", "nonlinear") == 1
+    assert search_workers("auto", "barrier", "condensed") == 1
+    assert search_workers("3", "planes", "nonlinear") == 3
+    monkeypatch.setattr(os, "cpu_count", lambda: 1)
+    assert search_workers("auto", "barrier", "nonlinear") == 1

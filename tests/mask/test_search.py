@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))  # noqa: E402
-from _fit_case import coarse_problem
+from _fit_case import coarse_barrier_problem, coarse_problem
 from headsim.errors import ParameterError
 from headsim.mask import search as search_mod
 from headsim.mask.search import SearchOptions, least_seal_force
@@ -207,3 +207,124 @@ def test_leak_window_stops_at_the_fit_budget(monkeypatch):
     assert res.leak_status == "max-solves" and res.leak_solves == 4
     assert (res.leak_lower_bound, res.leak_force) == (4.375, 5.0)
     assert res.leak_upper_force == 20.0 and res.leak_upper_bound == 40.0
+
+
+class _RoundRecorder:
+    """A stand-in fitter for the parallel search: records every fit with the forces solved before it
+    started, and how many fits ran at once (the fits of a round run in a thread pool)."""
+
+    def __init__(self, make_fit, delay=0.02):
+        import threading
+
+        self.make_fit, self.delay = make_fit, delay
+        self.lock = threading.Lock()
+        self.running = self.most = 0
+        self.calls = []
+
+    def __call__(self, problem, force, warm_start=None, progress=None):
+        import time
+
+        with self.lock:
+            self.running += 1
+            self.most = max(self.most, self.running)
+            self.calls.append((force, warm_start))
+        time.sleep(self.delay)
+        with self.lock:
+            self.running -= 1
+        return self.make_fit(force)
+
+
+def _parallel_search(monkeypatch, make_fit, opts, workers=2):
+    from concurrent.futures import ThreadPoolExecutor
+
+    rec = _RoundRecorder(make_fit)
+    monkeypatch.setattr(search_mod, "problem_fit", rec)
+    with ThreadPoolExecutor(workers) as pool:
+        res = least_seal_force(None, opts, workers=workers, executor=pool)
+    return res, rec
+
+
+@pytest.mark.parametrize("threshold", [0.0, 3.3, 7.31, 10.0, 27.9, 1e9])
+def test_parallel_search_brackets_what_the_serial_one_brackets(monkeypatch, threshold):
+    """Two fits at a time (trisection, doubling two steps ahead, halving two steps down): the strict answer
+    satisfies the same bracket as the one-at-a-time search (F* <= F <= F* + tolerance, the lower bound
+    leaks), with never more than two fits running at once, every warm start taken from a force solved
+    in an earlier round, and fewer rounds than the serial search's fits."""
+    opts = SearchOptions(start=10.0, abs_tol=0.25, rel_tol=0.0, max_solves=30)
+    res, rec = _parallel_search(monkeypatch, lambda f: _FakeFit(f, threshold), opts)
+    monkeypatch.setattr(search_mod, "problem_fit", _fake_solver(threshold, []))
+    ref = least_seal_force(None, opts)
+    assert res.status == ref.status
+    assert rec.most == 2
+    if threshold == 0.0:
+        assert res.seal_force == opts.minimum and res.status == "seals-at-minimum"
+    elif threshold > opts.maximum:
+        assert res.seal_force is None and res.lower_bound == opts.maximum
+    else:
+        assert threshold <= res.seal_force <= threshold + 0.25
+        assert res.lower_bound < threshold and res.seal_force - res.lower_bound <= 0.25
+    solved = {f for f, _ in rec.calls}
+    for f, warm in rec.calls[1:]:
+        assert warm is not None and warm[1] in solved and warm[1] != f
+    assert res.n_solves == len(rec.calls)
+
+
+@pytest.mark.parametrize("low, high", [(5.0, 20.0), (0.5, 13.3)])
+def test_parallel_search_brackets_both_ends_of_a_leak_window(monkeypatch, low, high):
+    """The window's lower and upper ends are refined side by side (one fit each per round): both within
+    the tolerance, as with one worker."""
+    def make_fit(force):
+        r = _FakeFit(force, 1e9)
+        r.leak_acceptable = low <= force <= high
+        return r
+
+    opts = SearchOptions(start=10.0, maximum=60.0, abs_tol=0.25, rel_tol=0.0, max_solves=30)
+    res, rec = _parallel_search(monkeypatch, make_fit, opts)
+    assert res.status == "no-seal" and res.leak_status == "window" and rec.most == 2
+    if low <= opts.minimum:
+        assert res.leak_force == opts.minimum and res.leak_lower_bound is None
+    else:
+        assert res.leak_lower_bound < low <= res.leak_force <= low + 0.25
+    assert res.leak_upper_force <= high < res.leak_upper_bound <= res.leak_upper_force + 0.25
+
+
+def test_parallel_search_retries_below_a_failed_fit(monkeypatch):
+    """The model fails above 30 N, the seal is at 24 N: 10 N, then 20 and 40 N together (40 fails): the
+    next round looks between 20 and 40 N and finds the seal."""
+    from headsim.errors import ConvergenceError
+
+    def make_fit(force):
+        if force > 30.0:
+            raise ConvergenceError("beyond the model")
+        return _FakeFit(force, 24.0)
+
+    opts = SearchOptions(start=10.0, maximum=60.0, abs_tol=0.5, rel_tol=0.0, max_solves=20)
+    res, _ = _parallel_search(monkeypatch, make_fit, opts)
+    assert res.status == "sealed" and 24.0 <= res.seal_force <= 24.5
+    assert res.failures and "40.00 N" in res.failures[0]
+
+
+def test_search_workers_are_validated():
+    with pytest.raises(ParameterError):
+        least_seal_force(None, SearchOptions(), workers=0)
+
+
+def test_search_in_two_worker_processes_matches_one_process():
+    """The real thing: a barrier search on the coarse face with its fits solved two at a time in worker
+    processes visits the same forces and gives the same seal and leak answers as the same search in this
+    process. A fit started from the same state in both (4 N cold; 8 N from 4 N) is the same to round-off
+    in the worker; 16 N starts from 8 N here but from 4 N in the workers' round (8 and 16 N together),
+    so it agrees only to the Newton tolerance (measured: mask travel 6.935 / 6.937 mm, peak pressure
+    92.5 / 93.1 kPa) and is not compared."""
+    p = coarse_barrier_problem()
+    opts = SearchOptions(start=4.0, maximum=16.0, abs_tol=4.0, rel_tol=0.0, max_solves=4)
+    one = least_seal_force(p, opts)
+    two = least_seal_force(p, opts, workers=2)
+    assert [c.force for c in two.curve] == [c.force for c in one.curve] == [4.0, 8.0, 16.0]
+    assert (two.seal_force, two.status, two.leak_force, two.leak_status) == \
+        (one.seal_force, one.status, one.leak_force, one.leak_status)
+    for a, b in zip(one.curve[:2], two.curve[:2]):
+        assert (a.sealed, a.leak_acceptable) == (b.sealed, b.leak_acceptable)
+        assert b.contact_area_cm2 == pytest.approx(a.contact_area_cm2, rel=1e-12)
+        assert b.peak_pressure_kpa == pytest.approx(a.peak_pressure_kpa, rel=1e-9)
+    assert one.curve[2].sealed == two.curve[2].sealed

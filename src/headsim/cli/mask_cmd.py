@@ -195,7 +195,29 @@ def _leak_text(result) -> str:
             f"threshold {leak.threshold_lpm:g} L/min; estimate)")
 
 
-def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float, mode: str = "nonlinear"):
+def search_workers(workers: str, contact: str, mode: str) -> int:
+    """--workers: an integer >= 1, or "auto": two fits at a time with the barrier contact in the
+    nonlinear mode on a machine with two or more cores (the demo search 95 -> 69-75 s; module doc of
+    :mod:`headsim.mask.search`, "Parallel search"), one otherwise (a planes fit depends on its warm start,
+    so the rounds of a parallel search can change its answer, and its fits are too short to pay for the
+    worker processes; condensed fits always run one at a time)."""
+    import os
+
+    from headsim.errors import ParameterError
+
+    if workers == "auto":
+        return 2 if contact == "barrier" and mode == "nonlinear" and (os.cpu_count() or 1) >= 2 else 1
+    try:
+        n = int(workers)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ParameterError(f"--workers must be 'auto' or an integer >= 1, got {workers!r}")
+    return n
+
+
+def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float, mode: str = "nonlinear",
+                   workers: int = 1):
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from headsim.cli._common import atomic_output_dir
@@ -210,7 +232,7 @@ def run_seal_force(problem, out: Path, start: float, maximum: float, tol: float,
         def progress(done, total, msg):
             bar.update(task, completed=done, msg=msg)
 
-        result = least_seal_force(problem, opts, progress=progress, mode=mode)
+        result = least_seal_force(problem, opts, progress=progress, mode=mode, workers=workers)
     check = fit_contact_check(problem, result.fit)
     with atomic_output_dir(out) as tmp:
         write_fit_report(tmp, problem, result.fit, result, contact_check=check)
@@ -249,15 +271,18 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
                layers: int = LAYERS, crop: float = CROP, mask_edge: float = EDGE,
                therapy_pressure: float = THERAPY, threshold: float = THRESH, mode: str = MODE,
                friction: float = FRICTION, leak_threshold: float = LEAK, contact: str = CONTACT,
-               rotation: str = ROTATION) -> None:
+               rotation: str = ROTATION,
+               workers: str = typer.Option("auto", "--workers", help="fits solved at once, each in its own process "
+                                           "(nonlinear mode; auto: 2 with the barrier contact on >= 2 cores, else 1)")) -> None:
     """Search the least strap force with which MASK seals on FACE (bracketing + bisection, warm-started)."""
     from headsim.mask.search import SearchOptions
 
     SearchOptions(start=start, maximum=maximum, abs_tol=tol)  # validate before the set-up work
     _check_mode(mode, friction, contact, rotation)
+    n_workers = search_workers(workers, contact, mode)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact, rotation)
-    run_seal_force(problem, out, start, maximum, tol, mode)
+    run_seal_force(problem, out, start, maximum, tol, mode, n_workers)
 
 
 @app.command("study")

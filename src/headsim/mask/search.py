@@ -42,12 +42,29 @@ A sealed fit leaks 0, so the answer is at most the strict seal force. When no so
 acceptable the answer is None ("leak above the threshold up to the largest force solved"); no fit
 above the strict search's range is tried. Cost on the demo (nonlinear, 10-30 N, 1 N): see
 :mod:`headsim.mask.fit` "Leak flow".
+**Parallel search** (``workers`` = k > 1): the search runs in rounds of up to k forces solved at once,
+each in its own worker process (SuperLU, ipctk and the Newton loop are serial, so a fit uses one core),
+each warm-started from the nearest force solved *before* the round (so the rounds, and with them the
+answer, do not depend on which fit finishes first). Bracketing doubles (halves) k steps ahead, a
+bracket is cut into k + 1 parts instead of two, and the acceptable-leak window's two ends are refined
+side by side, one fit each per round. With k = 1 every rule reduces to the one-at-a-time search
+above, fit for fit. The fits of a round start from states one round older, so a fit can take longer
+than its one-at-a-time counterpart (measured: 30 N from 10 N 31 s against 22 s from 20 N).
+Measured on the demo problem with the barrier contact (``headsim mask seal-force --contact barrier``,
+default 10-30 N, 0.5 N; 2 cores, a second job on the machine): the same answer (no seal up to 30 N,
+acceptable leak from 1.00 up to 18.75 N) in 11 fits, 94.6 s one at a time, 69-75 s with two workers
+(12 s first fit, 31 s for 20 and 30 N together, then four rounds of 10.5, 7.2, 4.5 and 2.7 s). The
+planes contact's fits depend on their warm start (lagged planes), so its parallel rounds can change
+the answer: the demo's planes search gave "acceptable from 2.81 N" one at a time and a window 2.71-20 N
+with two workers, in 25 s against 13 s (the worker start-up does not pay for 1-2 s fits); the CLI's
+``--workers auto`` therefore uses two workers for the barrier contact only.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from concurrent.futures import Executor
 from typing import Callable
 
 import numpy as np
@@ -180,182 +197,433 @@ class SearchResult:
 
 
 def least_seal_force(problem: FitProblem, options: SearchOptions = SearchOptions(),
-                     progress: Callable[[int, int, str], None] | None = None, mode: str = "nonlinear") -> SearchResult:
+                     progress: Callable[[int, int, str], None] | None = None, mode: str = "nonlinear",
+                     workers: int = 1, executor: Executor | None = None) -> SearchResult:
     """Search the least strap force that seals (module doc).
 
     problem : from :func:`headsim.mask.fit.prepare_fit`
-    progress : called as progress(solves_done, max_solves, message) after each fit (and, in the
-        nonlinear mode, before every Newton iteration of the fit in progress)
+    progress : called as progress(solves_done, max_solves, message) after each fit (and, with one
+        worker in the nonlinear mode, before every Newton iteration of the fit in progress)
     mode : "nonlinear" (every fit by :func:`headsim.mask.fit.problem_fit`) or "condensed" (the linear
         condensed model of :mod:`headsim.mask.condensed`, condensed once at the start; its time counts)
+    workers : fits solved at once (module doc "Parallel search"): 1 solves one force after another in
+        this process; k > 1 solves up to k forces of a round together in k worker processes (nonlinear
+        mode only; the condensed fits take 0.1-0.2 s, so they always run here, one after another)
+    executor : a :class:`concurrent.futures.Executor` to run the fits of ``workers`` > 1 instead of the
+        worker processes this function starts (e.g. a thread pool for tests with a stand-in fitter)
+
+    The worker processes are started with multiprocessing's "spawn" method (a fresh interpreter; forking
+    a process whose Numba or BLAS threads have run can deadlock), which imports the calling script's
+    main module again: call it from a script under ``if __name__ == "__main__":``.
     """
     if options.maximum > MAX_STRAP_FORCE:
         raise ParameterError(f"maximum force must be <= {MAX_STRAP_FORCE:g} N")
     if mode not in ("nonlinear", "condensed"):
         raise ParameterError(f"mode must be 'nonlinear' or 'condensed', got {mode!r}")
+    if int(workers) != workers or workers < 1:
+        raise ParameterError(f"workers must be an integer >= 1, got {workers}")
     t0 = time.perf_counter()
-    fits: dict[float, FitResult] = {}
-    fitter = problem_fit
     if mode == "condensed":
-        from headsim.mask.condensed import condense_fit, condensed_fit
+        workers = 1
+    with _FitRunner(problem, mode, int(workers), executor, progress, options.max_solves) as runner:
+        search = _Search(runner, options)
+        return search.run(t0)
 
-        condensed = condense_fit(problem)
 
-        def fitter(_problem, f, warm_start=None):
-            return condensed_fit(condensed, f)
+def _fit_call(problem, force: float, warm_start):
+    """One nonlinear fit (in a worker: the problem set by :func:`_worker_init` when ``problem`` is None)."""
+    return problem_fit(_WORKER_PROBLEM if problem is None else problem, force, warm_start=warm_start)
 
-    failed: list[str] = []
 
-    def solve(f: float) -> FitResult | None:
-        warm = None
-        if fits:
-            near = min(fits, key=lambda g: abs(g - f))
-            warm = fits[near].state
+_WORKER_PROBLEM = None
+
+
+def _worker_init(problem_bytes: bytes, threads: int) -> None:
+    """A worker process: the problem, and its share of the cores for Numba's parallel kernels."""
+    import pickle
+
+    import numba
+
+    global _WORKER_PROBLEM
+    _WORKER_PROBLEM = pickle.loads(problem_bytes)
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+
+
+class _FitRunner:
+    """Solves the forces of one round: one after another in this process, or together in workers."""
+
+    def __init__(self, problem, mode, workers, executor, progress, max_solves):
+        self.problem, self.workers, self.progress, self.max_solves = problem, workers, progress, max_solves
+        self.fits: dict[float, FitResult] = {}
+        self.failed: list[str] = []
+        self._own_pool = None
+        self.executor = executor
+        if mode == "condensed":
+            from headsim.mask.condensed import condense_fit, condensed_fit
+
+            condensed = condense_fit(problem)
+
+            def fitter(_problem, f, warm_start=None, progress=None):
+                return condensed_fit(condensed, f)
+
+            self.fitter = fitter
+        else:
+            self.fitter = None  # problem_fit, looked up at call time
+        if workers > 1 and executor is None:
+            import multiprocessing
+            import os
+            import pickle
+            from concurrent.futures import ProcessPoolExecutor
+
+            # spawn: a clean interpreter (forking a process whose Numba / BLAS threads have run is unsafe)
+            self._own_pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                 initializer=_worker_init,
+                                                 initargs=(pickle.dumps(problem), (os.cpu_count() or 1) // workers))
+            self.executor = self._own_pool
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self._own_pool is not None:
+            self._own_pool.shutdown(wait=True, cancel_futures=True)
+
+    def warm_start(self, force: float):
+        """The converged state of the nearest force solved so far (None before the first fit)."""
+        if not self.fits:
+            return None
+        return self.fits[min(self.fits, key=lambda g: abs(g - force))].state
+
+    def _record(self, f: float, r: FitResult | None, error: Exception | None) -> FitResult | None:
+        if error is not None:
+            if not self.fits and not self.failed and f == self._first:
+                raise error
+            self.failed.append(f"{f:.2f} N: {error}")
+            return None
+        self.fits[f] = r
+        if self.progress is not None:
+            self.progress(len(self.fits), self.max_solves,
+                          f"{f:.2f} N: {'sealed' if r.sealed else 'leaks'}, peak {r.summary.peak_pressure / 1e3:.1f} kPa"
+                          + ("" if r.leak_flow_lpm is None else f", leak {r.leak_flow_lpm:.2f} L/min"))
+        return r
+
+    def solve(self, forces: list[float]) -> dict[float, FitResult | None]:
+        """Fit every force (each warm-started from the nearest force solved before this round); a fit
+        that does not converge gives None (the very first fit of a search raises instead)."""
+        warm = {f: self.warm_start(f) for f in forces}
+        self._first = forces[0] if not self.fits and not self.failed else None
+        out = {}
+        if self.workers == 1 or len(forces) == 1:   # one force: here, with Newton progress
+            for f in forces:
+                out[f] = self._solve_here(f, warm[f])
+            return out
+        futures = {f: self.executor.submit(_fit_call, None if self._own_pool is not None else self.problem,
+                                           f, warm[f]) for f in forces}
+        if self.progress is not None:
+            self.progress(len(self.fits), self.max_solves,
+                          "fitting " + ", ".join(f"{f:.2f}" for f in forces) + f" N ({len(forces)} at once)")
+        results = {}
+        for f, fut in futures.items():
+            try:
+                results[f] = (fut.result(), None)
+            except ConvergenceError as e:
+                results[f] = (None, e)
+        for f in forces:  # recorded in the round's order: the same fits dict whatever finished first
+            out[f] = self._record(f, *results[f])
+        return out
+
+    def _solve_here(self, f, warm):
         extra = {}
-        if progress is not None and mode == "nonlinear":
+        if self.progress is not None and self.fitter is None:
             def newton_progress(it, gnorm, tol):
-                progress(len(fits), options.max_solves,
-                         f"{f:.2f} N: Newton iteration {it}, force residual {gnorm:.1e} N")
+                self.progress(len(self.fits), self.max_solves,
+                              f"{f:.2f} N: Newton iteration {it}, force residual {gnorm:.1e} N")
 
             extra["progress"] = newton_progress
         try:
-            r = fitter(problem, f, warm_start=warm, **extra)
+            r = (self.fitter or problem_fit)(self.problem, f, warm_start=warm, **extra)
         except ConvergenceError as e:
-            if not fits:
-                raise
-            failed.append(f"{f:.2f} N: {e}")
-            return None
-        fits[f] = r
-        if progress is not None:
-            progress(len(fits), options.max_solves,
-                     f"{f:.2f} N: {'sealed' if r.sealed else 'leaks'}, peak {r.summary.peak_pressure / 1e3:.1f} kPa"
-                     + ("" if r.leak_flow_lpm is None else f", leak {r.leak_flow_lpm:.2f} L/min"))
-        return r
+            return self._record(f, None, e)
+        return self._record(f, r, None)
 
-    lo = hi = None
-    f = options.start
-    r = solve(f)
-    status = "sealed"
-    if r.sealed:
-        lo, hi, stop = _halve_down(solve, lambda r: r.sealed, f, options, lambda: len(fits) < options.max_solves)
-        status = {"at-minimum": "seals-at-minimum", "solve-failed": "solve-failed"}.get(stop, status)
-    else:
-        lo = f
-        ceiling = None        # smallest force whose solve failed while bracketing upwards
-        while len(fits) + len(failed) < options.max_solves:
-            if f >= options.maximum:
-                status = "no-seal"
+
+class _Search:
+    """The search of the module doc, in rounds of up to ``runner.workers`` forces ("Parallel search")."""
+
+    def __init__(self, runner: _FitRunner, options: SearchOptions):
+        self.runner, self.o = runner, options
+
+    def _narrow(self, lo: float, hi: float) -> bool:
+        return hi - lo <= max(self.o.abs_tol, self.o.rel_tol * hi)
+
+    def _drive(self, steppers: list, budget_left: Callable[[], int]) -> None:
+        """Run the steppers in rounds: each active stepper (in order) gets one of the round's slots,
+        the first ones the spare slots; with one worker the first active stepper runs alone until done."""
+        k = self.runner.workers
+        while True:
+            for s in steppers:
+                a = s.after
+                if not s.done and not s.started and a is not None and a.done and a.result[2] not in (None, "at-minimum"):
+                    s.done = True   # its predecessor stopped early: it does not start (as with one worker)
+                    s.result = (s.lo, s.hi, None)
+            active = [s for s in steppers if not s.done]
+            if not active:
+                return
+            left = budget_left()
+            if left <= 0:
+                for s in active:
+                    s.out_of_budget()
+                return
+            slots = min(k, left)
+            share = [0] * len(active)
+            for i in range(slots):
+                share[i % len(active)] += 1
+            plan = []
+            for s, n in zip(active, share):
+                if n:
+                    forces = [f for f in s.propose(n) if f not in self.runner.fits]
+                    plan.append((s, forces))
+            forces = list(dict.fromkeys(f for _, fs in plan for f in fs))
+            res = self.runner.solve(forces) if forces else {}
+            for s, fs in plan:
+                s.take({f: res.get(f, self.runner.fits.get(f)) for f in s.proposed})
+
+    def run(self, t0: float) -> SearchResult:
+        o, runner = self.o, self.runner
+        fits, failed = runner.fits, runner.failed
+
+        def strict_budget():
+            return o.max_solves - len(fits) - len(failed)
+
+        r = runner.solve([o.start])[o.start]
+        lo = hi = None
+        status = "sealed"
+        if r.sealed:
+            down = _HalveDown(o.start, lambda r: r.sealed, o, self._narrow)
+            self._drive([down], strict_budget)
+            lo, hi, stop = down.result
+            if down.bisected:
+                status = stop or status
+            else:   # out of fits while halving: sealed at hi, no bracket below
+                status = {"at-minimum": "seals-at-minimum", "solve-failed": "solve-failed"}.get(stop, status)
+        else:
+            up = _BracketUp(o.start, self._narrow, o)
+            self._drive([up], strict_budget)
+            lo, hi, status = up.result
+            if hi is not None and status == "sealed":
+                bis = _Bisect(lo, hi, lambda r: r.sealed, self._narrow)
+                self._drive([bis], strict_budget)
+                lo, hi, stop = bis.result
+                status = stop or status
+        n_strict = len(fits) + len(failed)
+        leak = self._leak_bracket(lambda: o.max_solves - (len(fits) + len(failed) - n_strict))
+        leak_hi, leak_lo, leak_status, leak_top, leak_over = leak
+        curve = [CurvePoint(f, r.summary.contact_area_cm2, r.summary.peak_pressure / 1e3,
+                            r.summary.mean_pressure / 1e3, r.summary.area_above_threshold_cm2, r.sealed, r.seconds,
+                            r.leak_flow_lpm, r.leak_acceptable)
+                 for f, r in sorted(fits.items())]
+        n = len(fits) + len(failed)
+        extra = dict(leak_force=leak_hi, leak_lower_bound=leak_lo, leak_status=leak_status,
+                     leak_solves=n - n_strict, leak_fit=None if leak_hi is None else fits[leak_hi],
+                     leak_upper_force=leak_top, leak_upper_bound=leak_over)
+        if hi is None:
+            best = fits[max(fits)]
+            return SearchResult(None, lo, None, best, curve, n, time.perf_counter() - t0,
+                                status if status != "sealed" else "no-seal", o, list(failed), **extra)
+        width = None if lo is None else hi - lo
+        return SearchResult(hi, lo, width, fits[hi], curve, n, time.perf_counter() - t0, status, o,
+                            list(failed), **extra)
+
+    def _leak_bracket(self, budget_left):
+        """Least force with an acceptable leak from the solved fits, refined (module doc): (force or
+        None, largest unacceptable force below it or None, status, the window's top or None, the least
+        unacceptable force above the window or None). The window's two ends are refined side by side."""
+        fits, o = self.runner.fits, self.o
+
+        def accept(r):
+            return bool(r.leak_acceptable)
+
+        forces = sorted(fits)
+        ok = [accept(fits[f]) for f in forces]
+        if not any(ok):
+            return None, forces[-1], "not-acceptable", None, None
+        top = over = None
+        if ok[-1]:
+            # the smallest force from which every solved force is acceptable
+            k = len(ok) - 1
+            while k > 0 and ok[k - 1]:
+                k -= 1
+        else:
+            # acceptable somewhere but not at the largest force solved: the window of the lowest acceptable run
+            k = ok.index(True)
+            j = k
+            while ok[j + 1]:
+                j += 1
+            top, over = forces[j], forces[j + 1]
+        hi = forces[k]
+        lo = forces[k - 1] if k else None
+        lower = _HalveDown(hi, accept, o, self._narrow) if lo is None else _Bisect(lo, hi, accept, self._narrow)
+        steppers = [lower]
+        upper = None
+        if top is not None:
+            # the window's top: [top acceptable, over unacceptable], bisected with "too much leak" accepted
+            upper = _Bisect(top, over, lambda r: not accept(r), self._narrow, after=lower)
+            steppers.append(upper)
+        self._drive(steppers, budget_left)
+        lo, hi, stop = lower.result
+        if stop == "at-minimum":
+            stop = "acceptable-at-minimum"
+        if upper is not None and stop in (None, "acceptable-at-minimum"):
+            top, over, up_stop = upper.result
+            stop = up_stop or "window"
+        elif upper is not None and upper.started:
+            top, over = upper.result[:2]   # refined alongside the lower end before it stopped
+        return hi, lo, stop or "acceptable", top, over
+
+
+class _Stepper:
+    """One bracket refined in rounds: ``propose(n)`` -> up to n forces, ``take(results)`` updates."""
+
+    done = False
+    started = False
+    result = None
+    after = None   # a stepper that must end well first when fits run one at a time
+
+    def propose(self, n: int) -> list[float]:
+        self.started = True
+        self.proposed = self._propose(n)
+        return self.proposed
+
+
+class _HalveDown(_Stepper):
+    """From an accepted force ``hi``, halve (down to ``minimum``) until a force is rejected, then bisect
+    [rejected, accepted] to the tolerance. Result: (largest rejected force or None, smallest accepted
+    force, stop) with stop None or "at-minimum" | "max-solves" | "solve-failed"; ``bisected`` tells
+    whether the stop came while bisecting."""
+
+    def __init__(self, hi, accept, options, narrow):
+        self.hi, self.accept, self.minimum, self.narrow = hi, accept, options.minimum, narrow
+        self.bisect = None
+        self._check()
+
+    @property
+    def bisected(self) -> bool:
+        return self.bisect is not None
+
+    def _check(self):
+        if self.hi <= self.minimum:  # checked before the budget: an accepted fit at the minimum says so
+            self.done, self.result = True, (None, self.hi, "at-minimum")
+
+    def out_of_budget(self):
+        if self.bisect is not None:
+            self.bisect.out_of_budget()
+            self.done, self.result = True, self.bisect.result
+            return
+        self.done, self.result = True, (None, self.hi, "max-solves")
+
+    def _propose(self, n):
+        if self.bisect is not None:
+            return self.bisect.propose(n)
+        out, f = [], self.hi
+        for _ in range(n):
+            f = max(f / 2.0, self.minimum)
+            out.append(f)
+            if f <= self.minimum:
                 break
-            nxt = min(2.0 * f, options.maximum) if ceiling is None else 0.5 * (lo + ceiling)
-            r = solve(nxt)
+        return out
+
+    def take(self, results):
+        if self.bisect is not None:
+            self.bisect.take(results)
+            self.done, self.result = self.bisect.done, self.bisect.result
+            return
+        for f in self.proposed:   # descending
+            r = results[f]
             if r is None:
-                # the solve fails at nxt: look for the seal below it (module doc, step 1)
-                ceiling = nxt
-                if ceiling - lo <= max(options.abs_tol, options.rel_tol * ceiling):
-                    status = "solve-failed"
-                    break
-                continue
-            f = nxt
+                self.done, self.result = True, (None, self.hi, "solve-failed")
+                return
+            if not self.accept(r):
+                self.bisect = _Bisect(f, self.hi, self.accept, self.narrow)
+                self.done, self.result = self.bisect.done, self.bisect.result
+                return
+            self.hi = f
+        self._check()
+
+
+class _Bisect(_Stepper):
+    """Narrow [lo rejected, hi accepted] to max(abs_tol, rel_tol hi) by n-section (bisection with one
+    force per round). Result: (lo, hi, None) or, stopped early, (lo, hi, "max-solves" | "solve-failed")."""
+
+    def __init__(self, lo, hi, accept, narrow, after=None):
+        self.lo, self.hi, self.accept, self.narrow, self.after = lo, hi, accept, narrow, after
+        self._check()
+
+    def _check(self):
+        if self.narrow(self.lo, self.hi):
+            self.done, self.result = True, (self.lo, self.hi, None)
+
+    def out_of_budget(self):
+        self.done, self.result = True, (self.lo, self.hi, "max-solves")
+
+    def _propose(self, n):
+        return [self.lo + (j + 1) * (self.hi - self.lo) / (n + 1) for j in range(n)]
+
+    def take(self, results):
+        for f in self.proposed:   # ascending
+            r = results[f]
+            if r is None:
+                self.done, self.result = True, (self.lo, self.hi, "solve-failed")
+                return
+            if self.accept(r):
+                self.hi = f
+                break
+            self.lo = f
+        self._check()
+
+
+class _BracketUp(_Stepper):
+    """From a force ``lo`` that leaks, double (up to ``maximum``) until one seals; a fit that fails is
+    a ceiling: the next forces lie between the largest leaking force and it (module doc, step 1).
+    Result: (largest leaking force, sealing force or None, "sealed" | "no-seal" | "max-solves" |
+    "solve-failed")."""
+
+    def __init__(self, lo, narrow, options):
+        self.lo, self.narrow, self.maximum = lo, narrow, options.maximum
+        self.ceiling = None
+        self._check()
+
+    def _check(self):
+        if self.lo >= self.maximum:
+            self.done, self.result = True, (self.lo, None, "no-seal")
+
+    def out_of_budget(self):
+        self.done, self.result = True, (self.lo, None, "max-solves")
+
+    def _propose(self, n):
+        if self.ceiling is not None:
+            return [self.lo + (j + 1) * (self.ceiling - self.lo) / (n + 1) for j in range(n)]
+        out, f = [], self.lo
+        for _ in range(n):
+            f = min(2.0 * f, self.maximum)
+            out.append(f)
+            if f >= self.maximum:
+                break
+        return out
+
+    def take(self, results):
+        for f in self.proposed:   # ascending
+            r = results[f]
+            if r is None:
+                self.ceiling = f
+                if self.narrow(self.lo, f):
+                    self.done, self.result = True, (self.lo, None, "solve-failed")
+                    return
+                break
             if r.sealed:
-                hi = f
-                break
-            lo = f
-            if ceiling is not None and ceiling - lo <= max(options.abs_tol, options.rel_tol * ceiling):
-                status = "solve-failed"
-                break
-        else:
-            if hi is None:
-                status = "no-seal" if f >= options.maximum else "max-solves"
-    if hi is not None and lo is not None and status == "sealed":
-        lo, hi, stop = _bisect(solve, lambda r: r.sealed, lo, hi, options, lambda: len(fits) < options.max_solves)
-        status = stop or status
-    n_strict = len(fits) + len(failed)
-    leak_hi, leak_lo, leak_status, leak_top, leak_over = _leak_bracket(
-        solve, fits, options, lambda: len(fits) + len(failed) - n_strict < options.max_solves)
-    curve = [CurvePoint(f, r.summary.contact_area_cm2, r.summary.peak_pressure / 1e3,
-                        r.summary.mean_pressure / 1e3, r.summary.area_above_threshold_cm2, r.sealed, r.seconds,
-                        r.leak_flow_lpm, r.leak_acceptable)
-             for f, r in sorted(fits.items())]
-    n = len(fits) + len(failed)
-    leak = dict(leak_force=leak_hi, leak_lower_bound=leak_lo, leak_status=leak_status, leak_solves=n - n_strict,
-                leak_fit=None if leak_hi is None else fits[leak_hi], leak_upper_force=leak_top,
-                leak_upper_bound=leak_over)
-    if hi is None:
-        best = fits[max(fits)]
-        return SearchResult(None, lo, None, best, curve, n, time.perf_counter() - t0,
-                            status if status != "sealed" else "no-seal", options, failed, **leak)
-    width = None if lo is None else hi - lo
-    return SearchResult(hi, lo, width, fits[hi], curve, n, time.perf_counter() - t0, status, options, failed, **leak)
-
-
-def _halve_down(solve, accept, hi: float, options: SearchOptions, budget_left):
-    """From an accepted force ``hi``, halve (down to ``minimum``) until a force is rejected:
-    (rejected force or None, smallest accepted force, None or "at-minimum" | "max-solves" | "solve-failed")."""
-    while True:
-        if hi <= options.minimum:  # checked before the budget: an accepted fit at the minimum says so
-            return None, hi, "at-minimum"
-        if not budget_left():
-            return None, hi, "max-solves"
-        f = max(hi / 2.0, options.minimum)
-        r = solve(f)
-        if r is None:
-            return None, hi, "solve-failed"
-        if not accept(r):
-            return f, hi, None
-        hi = f
-
-
-def _bisect(solve, accept, lo: float, hi: float, options: SearchOptions, budget_left):
-    """Bisect [lo rejected, hi accepted] to max(abs_tol, rel_tol hi): (lo, hi, None) or, stopped early,
-    (lo, hi, "max-solves" | "solve-failed")."""
-    while hi - lo > max(options.abs_tol, options.rel_tol * hi):
-        if not budget_left():
-            return lo, hi, "max-solves"
-        mid = 0.5 * (lo + hi)
-        r = solve(mid)
-        if r is None:
-            return lo, hi, "solve-failed"
-        if accept(r):
-            hi = mid
-        else:
-            lo = mid
-    return lo, hi, None
-
-
-def _leak_bracket(solve, fits: dict, options: SearchOptions, budget_left):
-    """Least force with an acceptable leak from the solved ``fits``, refined (module doc): (force or
-    None, largest unacceptable force below it or None, status, the window's top or None, the least
-    unacceptable force above the window or None)."""
-    def accept(r):
-        return bool(r.leak_acceptable)
-
-    forces = sorted(fits)
-    ok = [accept(fits[f]) for f in forces]
-    if not any(ok):
-        return None, forces[-1], "not-acceptable", None, None
-    top = over = None
-    if ok[-1]:
-        # the smallest force from which every solved force is acceptable
-        k = len(ok) - 1
-        while k > 0 and ok[k - 1]:
-            k -= 1
-    else:
-        # acceptable somewhere but not at the largest force solved: the window of the lowest acceptable run
-        k = ok.index(True)
-        j = k
-        while ok[j + 1]:
-            j += 1
-        top, over = forces[j], forces[j + 1]
-    hi = forces[k]
-    lo = forces[k - 1] if k else None
-    stop = None
-    if lo is None:
-        lo, hi, stop = _halve_down(solve, accept, hi, options, budget_left)
-        stop = {"at-minimum": "acceptable-at-minimum"}.get(stop, stop)
-    if lo is not None:
-        lo, hi, stop = _bisect(solve, accept, lo, hi, options, budget_left)
-    if top is not None and stop in (None, "acceptable-at-minimum"):
-        # the window's top: [top acceptable, over unacceptable], bisected with "too much leak" as the accepted side
-        top, over, up_stop = _bisect(solve, lambda r: not accept(r), top, over, options, budget_left)
-        stop = up_stop or "window"
-    return hi, lo, stop or "acceptable", top, over
+                self.done, self.result = True, (self.lo, f, "sealed")
+                return
+            self.lo = f
+        if self.ceiling is not None and self.narrow(self.lo, self.ceiling):
+            self.done, self.result = True, (self.lo, None, "solve-failed")
+            return
+        self._check()
