@@ -165,8 +165,11 @@ def condensed_section(problem, nonlinear_15, search_options) -> None:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer explicit steps, looser search tolerance")
-    ap.add_argument("--contact", default="planes", choices=("planes", "barrier"),
+    ap.add_argument("--contact", default="barrier", choices=("planes", "barrier"),
                     help="the nonlinear fit's contact model (FitOptions.contact)")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="fits of the search solved at once (default: 2 with the barrier, 1 with the planes; "
+                         "the CLI's --workers auto)")
     ap.add_argument("--friction", type=float, default=0.0, help="skin-cushion Coulomb coefficient (FitOptions.friction)")
     ap.add_argument("--rotation", default="free", choices=("free", "held"),
                     help="the mask's orientation: turns on its strap (free) or held by the headgear")
@@ -201,9 +204,13 @@ def main(argv=None) -> None:
               f"{s.contact_area_cm2:.2f} cm², peak {s.peak_pressure / 1e3:.1f} kPa, mean {s.mean_pressure / 1e3:.1f} kPa, "
               f"{'sealed' if r.sealed else 'leaks'}")
     opts = SearchOptions(start=10.0, maximum=30.0, abs_tol=1.0 if args.quick else 0.5)
-    res, t_search = _timed(least_seal_force, problem, opts)
+    from headsim.cli.mask_cmd import search_workers
+
+    workers = args.workers or search_workers("auto", args.contact, "nonlinear")
+    res, t_search = _timed(least_seal_force, problem, opts, workers=workers)
     cpu_search = _CPU["least_seal_force"]
-    print(f"least-seal-force search: {t_search:6.2f} s wall ({cpu_search:.2f} s CPU), {res.n_solves} fits, "
+    print(f"least-seal-force search ({workers} worker{'s' if workers > 1 else ''}; CPU of this process only): "
+          f"{t_search:6.2f} s wall ({cpu_search:.2f} s CPU), {res.n_solves} fits, "
           f"status {res.status}, seal force {res.seal_force} N (largest leaking {res.lower_bound} N)")
     for c in res.curve:
         print(f"   F = {c.force:6.2f} N: area {c.contact_area_cm2:6.2f} cm², peak {c.peak_pressure_kpa:7.1f} kPa, "

@@ -22,7 +22,7 @@ from headsim.mask import find_landmarks, make_mask
 from headsim.mask.fit import FitOptions, prepare_fit, problem_fit
 from headsim.mesh.io import load_surface
 
-COARSE = FitOptions(tissue_layers=1, crop_margin=0.006)
+COARSE = FitOptions(tissue_layers=1, crop_margin=0.006, contact="planes")  # the planes model's tests
 
 
 @lru_cache(maxsize=1)

@@ -60,6 +60,10 @@ def test_mask_fit_writes_the_report(tmp_path, capsys):
         assert (out / name).exists(), name
     data = json.loads((out / "result.json").read_text())
     assert data["fit"]["force_balance_error"] < 0.01
+    from headsim.mask.fit import STALL_TOL
+
+    assert data["problem"]["contact_model"] == "barrier"   # the default contact model
+    assert 0.0 <= data["fit"]["force_residual_n"] <= STALL_TOL * 8.0
     assert ("SEALED" in stdout) == data["fit"]["sealed"]
     assert f"leak {data['leak_flow_lpm']:.2f} L/min" in stdout and data["leak_threshold_lpm"] == 24.0
     check = data["contact_check"]  # the geometric contact check of the nonlinear fit, warned about when failed

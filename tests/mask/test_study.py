@@ -110,8 +110,8 @@ def test_a_resumed_study_refuses_other_settings(faces, tmp_path):
     another's in one store: the second run stops with the differing settings named."""
     out = tmp_path / "study"
     run_study(faces, ["nasal-M"], out, processes=False, case_fn=fake_case, max_new_cases=1)
-    with pytest.raises(ParameterError, match="contact='planes'.*contact='barrier'"):
-        run_study(faces, ["nasal-M"], out, options=StudyOptions(contact="barrier"), processes=False,
+    with pytest.raises(ParameterError, match="contact='barrier'.*contact='planes'"):
+        run_study(faces, ["nasal-M"], out, options=StudyOptions(contact="planes"), processes=False,
                   case_fn=fake_case)
     with pytest.raises(ParameterError, match="rotate=True.*rotate=False"):
         run_study(faces, ["nasal-M"], out, options=StudyOptions(rotate=False), processes=False, case_fn=fake_case)
@@ -129,6 +129,9 @@ def test_a_store_without_recorded_settings_resumes_only_at_the_defaults(tmp_path
     store._db.execute("DELETE FROM settings")  # as a store written before settings were recorded
     store._db.commit()
     with pytest.raises(ParameterError, match="friction"):
-        store.check_settings(StudyOptions(friction=0.5))
-    store.check_settings(StudyOptions())
+        store.check_settings(StudyOptions(friction=0.5, contact="planes"))
+    # such a store was computed when the planes were the default contact
+    with pytest.raises(ParameterError, match="contact='planes'"):
+        store.check_settings(StudyOptions())
+    store.check_settings(StudyOptions(contact="planes"))
     store.close()

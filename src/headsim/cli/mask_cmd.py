@@ -59,7 +59,7 @@ def _load_mask(spec: str, mask_units: str, rigid_plane: Optional[str], thickness
 
 
 def _options(layers: int, crop_mm: float, therapy_pa: float, threshold_kpa: float, placement: str,
-             friction: float = 0.0, leak_threshold: float = LARGE_LEAK_LPM, contact: str = "planes",
+             friction: float = 0.0, leak_threshold: float = LARGE_LEAK_LPM, contact: str = "barrier",
              rotation: str = "free"):
     from headsim.mask.fit import FitOptions
 
@@ -88,15 +88,16 @@ LEAK = typer.Option(LARGE_LEAK_LPM, "--leak-threshold", help="largest unintentio
                     "acceptable, L/min (default: the large-leak flag of ResMed CPAP devices)")
 MODE = typer.Option("nonlinear", "--mode", help="nonlinear (finite-strain FEM contact) or condensed (linear face "
                     "and cushion condensed onto their contact surfaces, Kwon et al. 2022: fast re-fits)")
-CONTACT = typer.Option("planes", "--contact", help="nonlinear mode's contact: planes (lagged-plane penalty, fast; "
-                       "known to put pressure where the surfaces no longer touch, see the contact check) or barrier "
-                       "(IPC barrier on the current surfaces: consistent, never interpenetrates; about 10x slower)")
+CONTACT = typer.Option("auto", "--contact", help="nonlinear mode's contact: barrier (IPC barrier on the current "
+                       "surfaces: consistent, never interpenetrates; the default, 'auto') or planes (lagged-plane "
+                       "penalty, 5-10x faster, known to put pressure where the surfaces no longer touch: see the "
+                       "contact check)")
 ROTATION = typer.Option("free", "--rotation", help="the mask's orientation: free (it pitches and yaws on its strap "
                         "until the contact moments balance: a strap pulling at the airway centre) or held (headgear "
                         "with a forehead support keeps it: the mask only advances along the approach axis)")
 
 
-def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes", rotation: str = "free") -> str:
+def _check_mode(mode: str, friction: float = 0.0, contact: str = "auto", rotation: str = "free") -> str:
     from headsim.errors import ParameterError
 
     if rotation not in ("free", "held"):
@@ -105,12 +106,20 @@ def _check_mode(mode: str, friction: float = 0.0, contact: str = "planes", rotat
         raise ParameterError(f"--mode must be 'nonlinear' or 'condensed', got {mode!r}")
     if mode == "condensed" and friction > 0:
         raise ParameterError("--friction applies to the nonlinear mode only (the condensed mode has no friction model)")
-    if contact not in ("planes", "barrier"):
-        raise ParameterError(f"--contact must be 'planes' or 'barrier', got {contact!r}")
-    if mode == "condensed" and contact != "planes":
+    if contact not in ("auto", "planes", "barrier"):
+        raise ParameterError(f"--contact must be 'barrier' or 'planes', got {contact!r}")
+    if mode == "condensed" and contact != "auto":
         raise ParameterError("--contact applies to the nonlinear mode only (the condensed mode has its own "
                              "complementarity contact)")
     return mode
+
+
+def _resolve_contact(mode: str, contact: str) -> str:
+    """--contact auto: the barrier in the nonlinear mode; the condensed mode's problem is set up as
+    for the planes (no barrier start offset: its complementarity contact starts from the placement)."""
+    if contact != "auto":
+        return contact
+    return "barrier" if mode == "nonlinear" else "planes"
 
 
 @app.command("list")
@@ -125,7 +134,7 @@ def list_masks() -> None:
 
 
 def _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop, edge, therapy,
-             threshold, friction=0.0, leak_threshold=LARGE_LEAK_LPM, contact="planes", rotation="free"):
+             threshold, friction=0.0, leak_threshold=LARGE_LEAK_LPM, contact="barrier", rotation="free"):
     from headsim.mask.fit import prepare_fit
 
     mesh = _load_face(face, units)
@@ -155,6 +164,7 @@ def fit(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK, mask_
 
     check_force(force)
     _check_mode(mode, friction, contact, rotation)
+    contact = _resolve_contact(mode, contact)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact, rotation)
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -279,6 +289,7 @@ def seal_force(face: Optional[Path] = FACE, units: str = UNITS, mask: str = MASK
 
     SearchOptions(start=start, maximum=maximum, abs_tol=tol)  # validate before the set-up work
     _check_mode(mode, friction, contact, rotation)
+    contact = _resolve_contact(mode, contact)
     n_workers = search_workers(workers, contact, mode)
     problem = _prepare(face, units, mask, mask_units, rigid_plane, thickness, kind, placement, layers, crop,
                        mask_edge, therapy_pressure, threshold, friction, leak_threshold, contact, rotation)
@@ -303,7 +314,7 @@ def study(faces: Path = typer.Option(..., "--faces", help="folder of face meshes
 
     opts = StudyOptions(units=units, start=start, maximum=maximum, abs_tol=tol, tissue_layers=layers,
                         crop_margin=crop * 1e-3, mask_edge=mask_edge * 1e-3, mode=_check_mode(mode, friction, contact, rotation), friction=friction,
-                        contact=contact, rotate=rotation == "free")
+                        contact=_resolve_contact(mode, contact), rotate=rotation == "free")
     summary = run_study(faces, [m.strip() for m in masks.split(",") if m.strip()], out, options=opts,
                         scheduler=scheduler, n_workers=workers, progress=True)
     typer.echo(f"{summary['n_cases']} cases ({summary['n_computed']} computed now, {summary['n_reused']} from the "
@@ -313,4 +324,4 @@ def study(faces: Path = typer.Option(..., "--faces", help="folder of face meshes
 def demo(out: Path = typer.Option(Path("headsim-demo"), "--out", help="output folder")) -> None:
     """Least sealing force of the default mask (nasal-M) on the bundled face, with the report."""
     problem = _prepare(None, "m", "nasal-M", "mm", None, None, "nasal", "auto", 1, 8.0, 4.0, 980.665, 4.266)
-    run_seal_force(problem, out, 10.0, 30.0, 1.0)
+    run_seal_force(problem, out, 10.0, 30.0, 1.0, workers=search_workers("auto", problem.options.contact, "nonlinear"))

@@ -41,7 +41,7 @@ class StudyOptions:
     model (:class:`headsim.mask.fit.FitOptions`); mask_edge : element size of the built-in masks;
     mode : "nonlinear" or "condensed" (:func:`headsim.mask.search.least_seal_force`);
     friction : skin-cushion Coulomb coefficient of the nonlinear fit (FitOptions.friction);
-    contact : "planes" or "barrier", the nonlinear fit's contact model (FitOptions.contact)
+    contact : "barrier" (default) or "planes", the nonlinear fit's contact model (FitOptions.contact)
     rotate : the mask pitches and yaws on its strap (True) or keeps its orientation (FitOptions.rotate)
     """
 
@@ -56,7 +56,7 @@ class StudyOptions:
     mask_edge: float = 4e-3
     mode: str = "nonlinear"
     friction: float = 0.0  # frictionless, as FitOptions
-    contact: str = "planes"
+    contact: str = "barrier"
     rotate: bool = True
 
 
@@ -96,7 +96,9 @@ class CaseStore:
         stored = dict(self._db.execute("SELECT key, value FROM settings"))
         wanted = {k: json.dumps(v) for k, v in asdict(options).items()}
         if stored or self.done():
-            default = {k: json.dumps(v) for k, v in asdict(StudyOptions()).items()}
+            # a store from before the settings were recorded was computed with the defaults of its time:
+            # today's, except the contact (planes until the barrier became the default)
+            default = {k: json.dumps(v) for k, v in asdict(StudyOptions(contact="planes")).items()}
             differ = sorted(k for k in wanted if stored.get(k, default[k]) != wanted[k])
             if differ:
                 was = ", ".join(f"{k}={json.loads(stored.get(k, default[k]))!r}" for k in differ)

@@ -70,6 +70,12 @@ class NewtonOptions:
         Measured on the mask fit's barrier contact (demo configuration, cold fits at 10 / 15 / 20 N):
         61 / 98 / 138 Newton iterations against 83 / 126 / 159 with the exact Hessian tried at every
         iteration and 186 at 15 N with the projected one only (its local convergence is linear)
+    stall_tolerance : N or None. Where the line search finds no decrease at all -- the energy and its
+        gradient jump at the iterate, so that even a vanishing step raises the energy (a contact set
+        whose pairs switch type: ipctk's improved-max approximation, :mod:`headsim.mask.fit`
+        "Barrier contact") -- the solve ends there if |g|_inf <= this, reported as not converged
+        (``NewtonResult.converged`` False, ``gradient_norm`` the residual); None: it fails
+        (ConvergenceError), as where |g|_inf is larger
     """
 
     force_tolerance: float | None = None
@@ -86,6 +92,7 @@ class NewtonOptions:
     exact_after_full_step: bool = False
     amg_rebuild_iterations: int = 40
     blas_threads: int | None = 1
+    stall_tolerance: float | None = None
 
     def __post_init__(self):
         if self.linear_solver not in ("auto", "direct", "amg-cg"):
@@ -522,6 +529,8 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
                 # energy stagnates at round-off: accept if the gradient is already small relative to the start
                 if gnorm <= max(tol, 1e-6 * g0):
                     return result(it)
+                if options.stall_tolerance is not None and gnorm <= options.stall_tolerance:
+                    return result(it)   # stalled at a jump of the energy (stall_tolerance)
                 raise ConvergenceError(f"{what}: line search failed at iteration {it} (|g| = {gnorm:.3g} N)")
         z, e = zt, et
         with timer("gradient"):
