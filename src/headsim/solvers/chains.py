@@ -700,6 +700,8 @@ class ChainOptions:
     recovery_keeps_joints: bool = True
     springs_in_first_half_step: bool = True
     half_step_projection: bool = True
+    end_velocity_positions: bool = False
+    sweep_budget: int = 1_000_000
     separating_candidates: bool = True
     contact_domains: int = 1
 
@@ -892,6 +894,7 @@ class ChainSolver:
         self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
+        self._certificate = None  # end_velocity_positions: constraint power of the last velocity solve, J
 
     @staticmethod
     def _writable(a):
@@ -1164,7 +1167,7 @@ class ChainSolver:
         lam[order] = lam_sorted
         return u_out, int(sweeps.max(initial=0))
 
-    def _joint_rows(self, model, rows, x_mid, R_mid, dt, u_minus=None):
+    def _joint_rows(self, model, rows, x_mid, R_mid, dt, u_minus=None, spring_step=0.5):
         """Bilateral joint rows of every fibre with a contact: bodies k (−1: root anchor), l, levers, and the
         target relative anchor velocity −γ d_mid/(½Δt) (γ = ``joint_gap_fraction``; γ = 1 closes the
         mid-step gap d_mid by the step's end, γ = 0 keeps the anchors moving together)."""
@@ -1189,7 +1192,7 @@ class ChainSolver:
         # Δt K_w Δθ_end + Δt c Δω_rel with Δθ_end = ½Δt Δω_rel): C = ½Δt² K_w + Δt c E
         Rk = np.where(is_root[:, None, None], model.root_frame[fib[seg]], R_mid[kk])
         Kw = np.einsum("sac,sc,sbc->sab", Rk, model.joint_stiffness[seg], Rk)
-        C = 0.5 * dt * dt * Kw + dt * model.joint_damping[seg, None, None] * np.eye(3)
+        C = spring_step * dt * dt * Kw + dt * model.joint_damping[seg, None, None] * np.eye(3)
         wk = np.where(is_root[:, None], 0.0, u_minus[kk, 3:]) if u_minus is not None else 0.0
         w0 = (u_minus[seg, 3:] - wk) if u_minus is not None else np.zeros((len(seg), 3))
         return (k.astype(np.int64), seg.astype(np.int64), np.ascontiguousarray(rk), np.ascontiguousarray(rl),
@@ -1228,7 +1231,7 @@ class ChainSolver:
         return u
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
-                  x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None):
+                  x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
         ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
         Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
@@ -1257,7 +1260,8 @@ class ChainSolver:
             ps = self._pass_setup
             if ps is None or ps[0] is not rows or ps[1] != pass_key:  # once per harmonisation pass
                 jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt,
-                                                                 u_minus if u_spring is None else u_spring)
+                                                                 u_minus if u_spring is None else u_spring,
+                                                                 spring_step)
                 chain_off = _chain_offsets(jk, jl)
                 joints = (jk, jl, jrk, jrl, jt, jc, jw0, chain_off)
                 mass, inertia = self._writable(model.mass), self._writable(model.inertia)
@@ -1274,8 +1278,11 @@ class ChainSolver:
                 ps = self._pass_setup = (rows, pass_key, joints, mass, inertia, setup, body_part)
             _, _, joints, mass, inertia, setup, body_part = ps
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
+            cap = int(o.qp_iterations)
+            if budget:  # small systems: run to the stopping rule (see ChainOptions.sweep_budget)
+                cap = max(cap, int(o.sweep_budget) // max(1, len(pr) + len(joints[0])))
             sw, change, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
-                                        float(o.restitution), int(o.qp_iterations), float(o.contact_tolerance), lam_p,
+                                        float(o.restitution), cap, float(o.contact_tolerance), lam_p,
                                         fr_p, *joints, n_rows, bool(joints_last), body_part)
             if change > o.contact_tolerance:  # stopped by the sweep cap, not by the stopping rule
                 self._qp_capped += 1
@@ -1292,6 +1299,20 @@ class ChainSolver:
             u, sw = self._project(rows, order, row_off, bodies, u_minus, targets, model, R_mid, lam)
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
+
+    def _constraint_power(self, model, u, u_minus, R_mid):
+        """u'ᵀ g(u') (J): the power of every constraint impulse of the last contact solve at its result u' (S, 6),
+        g(u') = M(u' − u⁻) + Sᵀ C (S u' − ω₀) (M at R_mid; S: the relative rotation rates of the joints of the
+        touched chains, C, ω₀ their spring rows), i.e. the contact, friction and joint impulses and the spring
+        rows' residual impulses together (see ``ChainOptions.end_velocity_positions``)."""
+        jk, jl, _, _, _, jc, jw0, _ = self._pass_setup[2]
+        du = u - u_minus
+        Lw = np.einsum("sac,sc,sbc,sb->sa", R_mid, model.inertia, R_mid, du[:, 3:])
+        p = float((model.mass * (u[:, :3] * du[:, :3]).sum(1)).sum() + (u[:, 3:] * Lw).sum())
+        wk = np.where((jk >= 0)[:, None], u[np.maximum(jk, 0), 3:], 0.0)
+        wrel = u[jl, 3:] - wk
+        lam = np.einsum("jab,jb->ja", jc, wrel - jw0)
+        return p + float((wrel * lam).sum())
 
     def _warm_start_impulses(self, rows):
         """(λ, friction) per row: :data:`WARM_START_FRACTION` of the previous step's solution of the same
@@ -1366,8 +1387,14 @@ class ChainSolver:
             u_minus = np.concatenate([vJ + dv_ext, w_mid], axis=1)
             # the spring rows' reference twist: u⁻, or, where the first half step rotated with ω_h ≠ ω_J, the one
             # whose rows put the spring impulse at the rotation the step reaches (see _joint_rows)
-            u_spring = u_minus if not projected else np.concatenate(
-                [vJ, 2.0 * w_mid - w_hs + dth_extra / (0.5 * dt)], axis=1)
+            endvel = (o.end_velocity_positions and it > 0 and it + 1 == o.harmonisation_iterations
+                      and vel_impulses is not None and o.springs_in_first_half_step)
+            spring_step = 1.0 if endvel else 0.5
+            if endvel:  # the touched fibres move with u' for the whole step: springs at θ^i + Δt ω'
+                u_spring = np.concatenate([vJ, w_mid + dth_extra / dt], axis=1)
+            else:
+                u_spring = u_minus if not projected else np.concatenate(
+                    [vJ, 2.0 * w_mid - w_hs + dth_extra / (0.5 * dt)], axis=1)
             t2 = time.perf_counter()
             secs["integration"] += t2 - t1
             if rows is None:
@@ -1404,8 +1431,13 @@ class ChainSolver:
                 gaps = np.empty(len(rows.body))
                 KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
                 gaps += rows.gap
+            if endvel:  # end gap g^i + Δt J u' (first order): the rows' gaps at t_i
+                gaps = gaps0
             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
-                                   sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring)
+                                   sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring, spring_step=spring_step,
+                                   joints_last=endvel, budget=endvel)
+            if endvel:
+                self._certificate = self._constraint_power(model, u_vel, u_minus, R_mid)
             vel_impulses = self._impulses
             promoted += self._promoted
             u_pos = u_vel
@@ -1413,9 +1445,10 @@ class ChainSolver:
             if last and o.penetration_recovery > 0 and (gaps < 0).any():
                 # split impulse: the penetration push-out moves the positions but is not kept as velocity
                 # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
-                u_pos = self._contacts(rows, gaps, o.penetration_recovery, order, row_off, bodies, u_minus, model,
-                                       R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm, pass_key=it,
-                                       joints_last=o.split_recovery and o.recovery_keeps_joints, u_spring=u_spring)
+                u_pos = self._contacts(rows, gaps, o.penetration_recovery * (0.5 if endvel else 1.0), order, row_off,
+                                       bodies, u_minus, model, R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid,
+                                       warm, pass_key=it, joints_last=o.split_recovery and o.recovery_keeps_joints,
+                                       u_spring=u_spring, spring_step=spring_step, budget=endvel)
                 promoted += self._promoted
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
@@ -1437,6 +1470,22 @@ class ChainSolver:
         w_pos = np.empty((S, 3))
         half_step(x_mid, R_mid, np.ascontiguousarray(u_pos[:, :3]), np.ascontiguousarray(u_pos[:, 3:]), model.inertia,
                   0.5 * dt, x_new, R_new, w_pos)
+        if endvel and len(rows.body):
+            # the touched fibres: q^{i+1} = q^i + Δt u' (both half steps with the velocity solve's twists)
+            fib = model.segment_fibre
+            touched = np.zeros(model.n_fibres, bool)
+            touched[fib[rows.body]] = True
+            touched[fib[rows.partner[rows.partner >= 0]]] = True
+            tb = np.nonzero(touched[fib])[0]
+            up = np.ascontiguousarray(u_pos[tb])
+            xa, Ra, wa = np.empty((len(tb), 3)), np.empty((len(tb), 3, 3)), np.empty((len(tb), 3))
+            half_step(np.ascontiguousarray(x[tb]), np.ascontiguousarray(R[tb]), np.ascontiguousarray(up[:, :3]),
+                      np.ascontiguousarray(up[:, 3:]), np.ascontiguousarray(model.inertia[tb]), 0.5 * dt, xa, Ra, wa)
+            xb, Rb, wb = np.empty_like(xa), np.empty_like(Ra), np.empty_like(wa)
+            half_step(xa, Ra, np.ascontiguousarray(up[:, :3]), wa, np.ascontiguousarray(model.inertia[tb]), 0.5 * dt,
+                      xb, Rb, wb)
+            x_new[tb], R_new[tb] = xb, Rb
+            w_pos[tb] = _spin_carried(np.ascontiguousarray(u_pos[tb, 3:]), R_mid[tb], Rb, model.inertia[tb])
         v_new = np.ascontiguousarray(u_end[:, :3])
         if u_pos is u_end:
             w_new = w_pos
