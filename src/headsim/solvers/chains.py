@@ -700,8 +700,11 @@ class ChainOptions:
     recovery_keeps_joints: bool = True
     springs_in_first_half_step: bool = True
     half_step_projection: bool = True
-    end_velocity_positions: bool = False
+    end_velocity_positions: bool = True
     sweep_budget: int = 1_000_000
+    small_system_tolerance: float = 1e-6
+    exact_final_solve: bool = True
+    push_out_slop: float = 1e-3
     separating_candidates: bool = True
     contact_domains: int = 1
 
@@ -801,6 +804,182 @@ def _spin_carried(w: np.ndarray, R: np.ndarray, R_mid: np.ndarray, inertia: np.n
     return np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / inertia, R_mid, momentum)
 
 
+def _skew(r: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) cross-product matrices [r]× of (k, 3) vectors."""
+    z = np.zeros(len(r))
+    return np.stack([np.stack([z, -r[:, 2], r[:, 1]], 1), np.stack([r[:, 2], z, -r[:, 0]], 1),
+                     np.stack([-r[:, 1], r[:, 0], z], 1)], 1)
+
+
+def _tangent_frames(axis: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 3) t₁, t₂ of the coupled kernel's friction frames (``_kernels.chains._frame``: t₁ from the axis)."""
+    t1 = axis - (axis * n).sum(1)[:, None] * n
+    l1 = np.linalg.norm(t1, axis=1)
+    bad = l1 < 1e-9
+    if bad.any():
+        helper = np.where((np.abs(n[bad, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        t1[bad] = helper - (helper * n[bad]).sum(1)[:, None] * n[bad]
+        l1[bad] = np.linalg.norm(t1[bad], axis=1)
+    t1 = t1 / l1[:, None]
+    return t1, np.cross(n, t1)
+
+
+EXACT_FAILURES: dict = {}  # reason -> count of _exact_final_solve results that were not used (diagnostics)
+
+
+def _fail(reason):
+    EXACT_FAILURES[reason] = EXACT_FAILURES.get(reason, 0) + 1
+    return None
+
+
+def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, mu_inner, max_dof=600, rounds=20):
+    """The velocity solve's problem solved exactly (dense KKT) on the active set the Gauss–Seidel found
+    (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target, a sticking contact (tangential
+    speed below 1e-9 m/s at the Gauss–Seidel result) T u = 0, a sliding one keeps the direction of its
+    friction impulse with magnitude ∝ λ; joints and their spring rows exactly. Rows whose λ comes out
+    negative leave the set, bounds violated by more than 1e-12 m/s join it (``rounds`` times at most).
+    Returns (u (S, 6), λ, friction) or None when the system is larger than ``max_dof`` or the result does not
+    satisfy every sign condition (λ ≥ 0, sticking friction inside μ_inner λ, sliding friction not
+    accelerating, bounds met)."""
+    jk, jl, jrk, jrl, jt, jc, jw0, _ = joints
+    body, partner = rows.body, rows.partner
+    used = np.unique(np.concatenate([body, partner[partner >= 0], jk[jk >= 0], jl]))
+    n = len(used)
+    N = 6 * n
+    if N > max_dof or not len(body):
+        return _fail("too large")
+    loc = np.full(model.n_segments, -1, np.int64)
+    loc[used] = np.arange(n)
+    Iw = np.einsum("sac,sc,sbc->sab", R_mid[used], model.inertia[used], R_mid[used])
+    M = np.zeros((N, N))
+    for i in range(n):
+        M[6 * i:6 * i + 3, 6 * i:6 * i + 3] = model.mass[used[i]] * np.eye(3)
+        M[6 * i + 3:6 * i + 6, 6 * i + 3:6 * i + 6] = Iw[i]
+    um = u_minus[used].reshape(-1)
+    rhs = M @ um
+    nj = len(jl)
+    S = np.zeros((3 * nj, N))
+    G = np.zeros((3 * nj, N))
+    skk, skl = _skew(jrk), _skew(jrl)
+    for j in range(nj):
+        l = 6 * loc[jl[j]]
+        S[3 * j:3 * j + 3, l + 3:l + 6] = np.eye(3)
+        G[3 * j:3 * j + 3, l:l + 3] = -np.eye(3)
+        G[3 * j:3 * j + 3, l + 3:l + 6] = skl[j]
+        if jk[j] >= 0:
+            k = 6 * loc[jk[j]]
+            S[3 * j:3 * j + 3, k + 3:k + 6] = -np.eye(3)
+            G[3 * j:3 * j + 3, k:k + 3] = np.eye(3)
+            G[3 * j:3 * j + 3, k + 3:k + 6] = -skk[j]
+    Cb = np.zeros((3 * nj, 3 * nj))
+    for j in range(nj):
+        Cb[3 * j:3 * j + 3, 3 * j:3 * j + 3] = jc[j]
+    Mt = M + S.T @ Cb @ S
+    rhs = rhs + S.T @ (Cb @ jw0.reshape(-1))
+    # contact rows (n, t1, t2) on both bodies
+    nr = len(body)
+    t1, t2 = _tangent_frames(R_mid[body, :, 2], rows.normal)
+    J = np.zeros((3, nr, N))
+    for k, d in enumerate((rows.normal, t1, t2)):
+        a = 6 * loc[body]
+        for c in range(3):
+            J[k, np.arange(nr), a + c] = d[:, c]
+            J[k, np.arange(nr), a + 3 + c] = np.cross(rows.lever, d)[:, c]
+        hasb = partner >= 0
+        if hasb.any():
+            b = 6 * loc[partner[hasb]]
+            for c in range(3):
+                J[k, np.nonzero(hasb)[0], b + c] = -d[hasb, c]
+                J[k, np.nonzero(hasb)[0], b + 3 + c] = -np.cross(rows.partner_lever[hasb], d[hasb])[:, c]
+    active = lam > 0
+    ratio = np.zeros((nr, 2))
+    ratio[active] = fr[active] / lam[active, None]
+    stick = active & (np.linalg.norm(ratio, axis=1) < mu_inner * (1.0 - 1e-6))
+    for _ in range(rounds):
+        A = np.nonzero(active)[0]
+        st = stick[A]
+        na, ns = len(A), int(st.sum())
+        Ast, Asl = A[st], A[~st]
+        K = np.zeros((N + 3 * nj + na + 2 * ns,) * 2)
+        K[:N, :N] = Mt
+        K[:N, N:N + 3 * nj] = -G.T
+        Jn = J[0, A]
+        eff = Jn.copy()  # a sliding row's impulse: λ (n + friction ratio · (t₁, t₂))
+        eff[~st] += ratio[Asl, 0:1] * J[1, Asl] + ratio[Asl, 1:2] * J[2, Asl]
+        K[:N, N + 3 * nj:N + 3 * nj + na] = -eff.T
+        Ts = np.concatenate([J[1, Ast], J[2, Ast]])
+        K[:N, N + 3 * nj + na:] = -Ts.T
+        K[N:N + 3 * nj, :N] = G
+        K[N + 3 * nj:N + 3 * nj + na, :N] = Jn
+        K[N + 3 * nj + na:, :N] = Ts
+        b = np.concatenate([rhs, jt.reshape(-1), targets[A], np.zeros(2 * ns)])
+        # equilibrate (velocities in m/s, impulses in N s differ by many orders), then solve; redundant rows (two
+        # segments' end rows at one joint) make K singular: least squares, which must still meet every equation
+        sc = 1.0 / np.sqrt(np.maximum(np.abs(K).max(1), 1e-300))
+        Ks = K * sc[:, None] * sc[None, :]
+        bs = b * sc
+        tol = 1e-10 * max(np.abs(bs).max(), 1e-300)
+        try:
+            y = np.linalg.solve(Ks, bs)
+            ok = np.isfinite(y).all() and np.abs(Ks @ y - bs).max() <= tol
+        except np.linalg.LinAlgError:
+            ok = False
+        if not ok:
+            y = np.linalg.lstsq(Ks, bs, rcond=1e-13)[0]
+        sol = y * sc
+        u = sol[:N]
+        if not ok and np.abs(Ks @ y - bs).max() > tol:
+            # inconsistent equalities (rows of one constraint with different targets): the rows the least-squares
+            # velocity over-satisfies would be slack; leave them out
+            over = Jn @ u > targets[A] + 1e-12
+            if not over.any():
+                return _fail("inconsistent")
+            active[A[over]] = False
+            continue
+        lam_a = sol[N + 3 * nj:N + 3 * nj + na]
+        f_s = sol[N + 3 * nj + na:].reshape(2, ns).T
+        changed = False
+        neg = lam_a < 0
+        if neg.any():
+            active[A[neg]] = False
+            changed = True
+        viol = (J[0] @ u < targets - 1e-12) & ~active
+        if viol.any():
+            active |= viol
+            ratio[viol] = 0.0
+            stick |= viol & (mu_inner > 0)
+            changed = True
+        # friction: a sticking force outside the inner cone slides (its direction, on the cone), a sliding
+        # force that would accelerate its contact sticks
+        out_cone = np.linalg.norm(f_s, axis=1) > mu_inner * np.maximum(lam_a[st], 0.0)
+        if out_cone.any():
+            r = Ast[out_cone]
+            f = f_s[out_cone]
+            ratio[r] = mu_inner * f / np.maximum(np.linalg.norm(f, axis=1), 1e-300)[:, None]
+            stick[r] = False
+            changed = True
+        vt = np.stack([J[1, Asl] @ u, J[2, Asl] @ u], 1)
+        fv = (ratio[Asl] * vt).sum(1)
+        acc = fv > 1e-9 * np.linalg.norm(ratio[Asl], axis=1) * np.linalg.norm(vt, axis=1)
+        if acc.any() and mu_inner > 0:
+            stick[Asl[acc]] = True
+            changed = True
+        elif acc.any():
+            return _fail("sliding friction accelerates")
+        if not changed:
+            break
+    else:
+        return _fail("active set")
+    lam_new = np.zeros(nr)
+    lam_new[A] = lam_a
+    fr_new = np.zeros((nr, 2))
+    fr_new[Asl] = ratio[Asl] * lam_new[Asl, None]
+    fr_new[Ast] = f_s
+    out = u_minus.copy()
+    out[used] = u.reshape(n, 6)
+    return out, lam_new, fr_new
+
+
 def _fibre_domains(fa: np.ndarray, fb: np.ndarray, n_fibres: int, n_domains: int) -> np.ndarray:
     """(n_fibres,) int64 domain 0 … n_domains − 1 of every fibre, for the parallel contact sweep of the coupled
     solve (``ChainOptions.contact_domains``): recursive bisection of the fibre contact graph (fa, fb: the
@@ -886,6 +1065,12 @@ class ChainSolver:
         self._bvh = None  # rebuilt every step: its capsule radii carry each segment's speculative margin
         self._speed = None
         self._mu = options.friction.generators()
+        px, py = self._mu
+        if len(px) and np.hypot(px, py).max() > 0:  # inner radius of the friction polygon (per unit λ)
+            qx, qy = np.roll(px, -1), np.roll(py, -1)
+            self._mu_inner = float(np.min(np.abs(px * qy - py * qx) / np.hypot(qx - px, qy - py)))
+        else:
+            self._mu_inner = 0.0
         self._warm = None  # (sorted keys, λ, friction) of the last step's contact solution (warm start)
         self._impulses = None
         self._promoted = 0  # candidate rows the last coupled solve added
@@ -894,7 +1079,9 @@ class ChainSolver:
         self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
-        self._certificate = None  # end_velocity_positions: constraint power of the last velocity solve, J
+        self._bound = None  # end_velocity_positions: the last step's energy bound B (J, see _energy_bound)
+        self._budgeted = False  # the last coupled solve ran under the small-system sweep budget
+        self._continued = 0  # end_velocity_positions: continued velocity solves of the last step
 
     @staticmethod
     def _writable(a):
@@ -1231,7 +1418,8 @@ class ChainSolver:
         return u
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
-                  x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False):
+                  x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False,
+                  tol_scale=1.0):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
         ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
         Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
@@ -1278,13 +1466,16 @@ class ChainSolver:
                 ps = self._pass_setup = (rows, pass_key, joints, mass, inertia, setup, body_part)
             _, _, joints, mass, inertia, setup, body_part = ps
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
-            cap = int(o.qp_iterations)
-            if budget:  # small systems: run to the stopping rule (see ChainOptions.sweep_budget)
-                cap = max(cap, int(o.sweep_budget) // max(1, len(pr) + len(joints[0])))
+            cap, tol = int(o.qp_iterations), float(o.contact_tolerance)
+            if budget:  # small systems: run to a tighter stopping rule (see ChainOptions.sweep_budget)
+                n_budget = int(o.sweep_budget) // max(1, len(pr) + len(joints[0]))
+                self._budgeted = n_budget > cap
+                if n_budget > cap:
+                    cap, tol = n_budget, min(tol, float(o.small_system_tolerance)) * tol_scale
             sw, change, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
-                                        float(o.restitution), cap, float(o.contact_tolerance), lam_p,
+                                        float(o.restitution), cap, tol, lam_p,
                                         fr_p, *joints, n_rows, bool(joints_last), body_part)
-            if change > o.contact_tolerance:  # stopped by the sweep cap, not by the stopping rule
+            if change > tol:  # stopped by the sweep cap, not by the stopping rule
                 self._qp_capped += 1
             self._qp_residual = max(self._qp_residual, float(change))
             fr = np.empty((len(lam), 2))
@@ -1300,19 +1491,23 @@ class ChainSolver:
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
 
-    def _constraint_power(self, model, u, u_minus, R_mid):
-        """u'ᵀ g(u') (J): the power of every constraint impulse of the last contact solve at its result u' (S, 6),
-        g(u') = M(u' − u⁻) + Sᵀ C (S u' − ω₀) (M at R_mid; S: the relative rotation rates of the joints of the
-        touched chains, C, ω₀ their spring rows), i.e. the contact, friction and joint impulses and the spring
-        rows' residual impulses together (see ``ChainOptions.end_velocity_positions``)."""
+    def _energy_bound(self, model, u, u_minus, u_start, R_mid):
+        """The bound B = u'ᵀ g(u') − ½‖u' − u^i‖²_M (J) of the step's energy change for the last contact solve's
+        result u' (S, 6; ``ChainOptions.end_velocity_positions``): g(u') = M(u' − u⁻) + Sᵀ C (S u' − ω₀) is the
+        sum of every constraint impulse (contacts, friction, joints, and the spring rows' residual; M at R_mid,
+        S: the relative rotation rates of the joints of the touched chains, C, ω₀ their spring rows), u_start
+        the twists at t_i (angular part carried to R_mid)."""
         jk, jl, _, _, _, jc, jw0, _ = self._pass_setup[2]
-        du = u - u_minus
-        Lw = np.einsum("sac,sc,sbc,sb->sa", R_mid, model.inertia, R_mid, du[:, 3:])
-        p = float((model.mass * (u[:, :3] * du[:, :3]).sum(1)).sum() + (u[:, 3:] * Lw).sum())
+
+        def mdot(a, b):
+            Lw = np.einsum("sac,sc,sbc,sb->sa", R_mid, model.inertia, R_mid, b[:, 3:])
+            return float((model.mass * (a[:, :3] * b[:, :3]).sum(1)).sum() + (a[:, 3:] * Lw).sum())
+
         wk = np.where((jk >= 0)[:, None], u[np.maximum(jk, 0), 3:], 0.0)
         wrel = u[jl, 3:] - wk
-        lam = np.einsum("jab,jb->ja", jc, wrel - jw0)
-        return p + float((wrel * lam).sum())
+        spring = np.einsum("jab,jb->ja", jc, wrel - jw0)
+        d = u - u_start
+        return mdot(u, u - u_minus) + float((wrel * spring).sum()) - 0.5 * mdot(d, d)
 
     def _warm_start_impulses(self, rows):
         """(λ, friction) per row: :data:`WARM_START_FRACTION` of the previous step's solution of the same
@@ -1340,6 +1535,8 @@ class ChainSolver:
         S = model.n_segments
         self._qp_capped = 0
         self._qp_residual = 0.0
+        self._continued = 0
+        self._bound = None
         half_step = K.half_step if S >= o.parallel_threshold else K.half_step_serial
         x, R, v, w = state.position, state.rotation, state.velocity, state.angular_velocity
         g = np.asarray(o.gravity, float)
@@ -1431,21 +1628,40 @@ class ChainSolver:
                 gaps = np.empty(len(rows.body))
                 KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
                 gaps += rows.gap
-            if endvel:  # end gap g^i + Δt J u' (first order): the rows' gaps at t_i
-                gaps = gaps0
+            gaps_pos = gaps_stat = gaps
+            if endvel:
+                gaps_stat = gaps0
+                # end gap g^i + Δt J u' (first order; g^i: the rows' gaps at t_i): a speculative row may close the
+                # smaller of ½ g^i and its mid-step gap (so it arrives no faster than g^i/(2Δt) with ½ g^i left, and
+                # the next step's mid-step state does not pass through its partner), a penetration is held
+                # (velocity solve) and pushed out by its depth at t_i (push-out solve)
+                gaps = np.minimum(gaps, np.where(gaps0 > 0, 0.5 * gaps0, gaps0))
+                slop = o.push_out_slop * model.radius[rows.body]
+                gaps_pos = np.where(gaps0 < -slop, gaps0 + slop, np.maximum(gaps, 0.0))
             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                    sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring, spring_step=spring_step,
                                    joints_last=endvel, budget=endvel)
             if endvel:
-                self._certificate = self._constraint_power(model, u_vel, u_minus, R_mid)
+                # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met its
+                # stopping rule with a positive bound is solved on, from its own impulses, to a 10× tighter rule
+                if o.exact_final_solve and self._impulses is not None:
+                    exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
+                                               np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
+                                               self._pass_setup[2], self._mu_inner)
+                    if exact is not None:
+                        u_vel, lam[:] = exact[0], exact[1]
+                        self._impulses = (exact[1].copy(), exact[2])
+                        self._continued += 1
+                u_start = np.concatenate([v, _spin_carried(w, R, R_mid, model.inertia)], axis=1)
+                self._bound = self._energy_bound(model, u_vel, u_minus, u_start, R_mid)
             vel_impulses = self._impulses
             promoted += self._promoted
             u_pos = u_vel
             last = it + 1 == o.harmonisation_iterations
-            if last and o.penetration_recovery > 0 and (gaps < 0).any():
+            if last and o.penetration_recovery > 0 and (gaps_pos < 0).any():
                 # split impulse: the penetration push-out moves the positions but is not kept as velocity
                 # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
-                u_pos = self._contacts(rows, gaps, o.penetration_recovery * (0.5 if endvel else 1.0), order, row_off,
+                u_pos = self._contacts(rows, gaps_pos, o.penetration_recovery * (0.5 if endvel else 1.0), order, row_off,
                                        bodies, u_minus, model, R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid,
                                        warm, pass_key=it, joints_last=o.split_recovery and o.recovery_keeps_joints,
                                        u_spring=u_spring, spring_step=spring_step, budget=endvel)
@@ -1513,7 +1729,7 @@ class ChainSolver:
         st.obstacle_contacts = int((active & rows.obstacle).sum())
         st.fibre_contacts = st.contacts - st.obstacle_contacts
         # the mid-step state the step integrates from: the last pass's (first order from the detection state)
-        st.max_penetration = float(max(0.0, -gaps.min(initial=0.0)))
+        st.max_penetration = float(max(0.0, -gaps_stat.min(initial=0.0)))
         if obstacles:
             d3 = R_new[:, :, 2]
             ends = np.concatenate([x_new - model.half_length[:, None] * d3, x_new + model.half_length[:, None] * d3])
