@@ -473,24 +473,15 @@ def test_former_half_step_never_gains_energy_on_the_fibre_held_bent(recovery):
     assert np.diff(e).max() <= BENT_FIBRE_ROUND_OFF * e[0]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 10, open: the projected first half step (ChainOptions.half_step_projection) is not monotone in "
-    "energy on the clamped bent fibre (ε = 0). Measured (benchmarks/bench_energy_ledger.py): with push-out "
-    "(β = 0.2) largest single-step rise 1.2e-12 J (1.1e-3 of E0 = 1.14e-9 J) at step 11, and at rest "
-    "(steps 150–300) a period-3 limit cycle of the tip joint (+7.0e-13, +2.4e-13, −9.5e-13 J; tip "
-    "segments at 2–3 rad/s, the tip end 3.8 µm into the plane at mid-step, pushed out each step); "
-    "without push-out +7.6e-10 J (0.67 E0) in the first step, created by the last pass's velocity solve "
-    "stopped at its 60-sweep cap (joint-rate residual 23 mm/s, 8.9 µm end-of-step joint gaps; converged: "
-    "−1.9e-10 J), and with every solve converged still +8.7e-14 J at step 11, where the step energy "
-    "identity's term ½(u'−u)ᵀM(u−u_h) gives +8.0e-14 J (−2.1e-13 J with u_J in place of u_h): the "
-    "projection itself. See the ChainOptions.half_step_projection notes."))
 @pytest.mark.parametrize("recovery", [0.2, 0.0])
 def test_fibre_held_bent_by_its_contact_never_gains_energy(recovery):
     """Issue 10's requirement "energy never increases with ε = 0" on :func:`_clamped_fibre_bent_onto_plane`
     at the defaults (with and without the split push-out): no single step of the 300 from its release, the
     resting fibre's steps included, raises the total energy (kinetic + gravity + joint springs) by more
-    than :data:`BENT_FIBRE_ROUND_OFF` of the initial energy. Fails with the projected first half step (see
-    the xfail reason for the measured rises and where they arise)."""
+    than :data:`BENT_FIBRE_ROUND_OFF` of the initial energy. Passes with ``end_velocity_positions`` and
+    ``exact_final_solve`` (the defaults; measured: largest single-step change +1.5e-22 J with and without the
+    push-out, no rising step); failed with the projected midpoint half step alone (largest rise 1.2e-12 J with
+    push-out, +7.6e-10 J without, and a period-3 limit cycle at rest; ``benchmarks/bench_energy_ledger.py``)."""
     _, e = _clamped_fibre_bent_onto_plane(energies=True, penetration_recovery=recovery)
     assert np.diff(e).max() <= BENT_FIBRE_ROUND_OFF * e[0]
 

@@ -560,7 +560,9 @@ class ChainOptions:
         Δt² k/m → ∞, x' → 0 and v' → −v − 2x/Δt, an undamped period-2 ringing of the stiff bending modes
         (Δt² K/I ≈ 1–10⁴ for 70 µm fibres at 1–10 mm segments), so that variant was not pursued; see
         ``half_step_projection`` for the scheme that is the default now.
-    half_step_projection : default True (coupled mode, ``harmonisation_iterations`` ≥ 2; issue 10): the first
+    half_step_projection : default True (coupled mode, ``harmonisation_iterations`` ≥ 2; issue 10; with
+        ``end_velocity_positions``, the default, it only predicts the geometry of the last pass, and the
+        energy analysis below is that of ``end_velocity_positions=False``): the first
         half step of the last harmonisation pass moves with the joint stage's twists u_J projected, in the
         kinetic metric plus the implicit spring rows (C = ½Δt² K_w, as in the contact solve), onto the
         contacts of the previous pass: min ½‖u_h − u_J‖² s.t. J_α u_h ≥ −max(g_α^i, 0)/(½Δt) for every row
@@ -618,6 +620,62 @@ class ChainOptions:
         fixed, 1.7e-12 J at step 8), the first half step with the previous pass's contact-solved twists
         (6.5e-10 J at the cap, 3.8e-14 J converged) and the projection in the kinetic metric alone (spring
         rows C = 0: 1.6e-9 J in the first step at the cap, 1.9e-12 J at step 6 converged).
+    end_velocity_positions : coupled mode, default True (issue 10, "energy never increases with ε = 0"): in the last
+        harmonisation pass (≥ 2 passes, after a pass with contact rows) every fibre that has a contact row moves
+        with the velocity solve's twists for the whole step, q^{i+1} = q^i + Δt u' (both half steps; the
+        first half step, projected or not, only predicts the geometry the rows and joint levers are evaluated
+        at), its joint springs are implicit at the rotation the step reaches, θ^i + Δt ω' (spring rows
+        C = Δt² K_w + Δt c E with reference rate ω_J + dθ_extra/Δt, where the midpoint scheme has ½Δt² K_w),
+        and the rows' targets come from their gaps at t_i, g^i (first order): a speculative row closes at most
+        min(½ g^i, g_mid) (so it arrives no faster than g^i/(2Δt) and the next step's mid-step state does not
+        pass through its partner: with g^i the dropped fibre of the tests tunnelled), a penetration is held
+        (target 0) and the split push-out acts on its depth at t_i beyond ``push_out_slop``. Fibres without
+        contact rows keep the midpoint step. The velocity solve ends with an exact joint solve, and for small
+        systems (``exact_final_solve``) with an exact solve on the Gauss–Seidel's active set.
+        Energy (derivation; linearised geometry, frictional contacts, ε = 0): with g(u') = M(u' − u⁻) +
+        Sᵀ C (S u' − ω₀) the sum of every constraint impulse (contacts λ, friction f, joints p, the spring rows'
+        residual; u⁻ = u_J + Δt g, M(u_J − u^i) = −Δt ∇V_s(θ_trial) + Gᵀp_J), M(u' − u^i) = −Δt ∇V(q^{i+1}) + g
+        (V: springs and gravity, convex), so E' − E = ½(u' + u^i)ᵀM(u' − u^i) + V(q^{i+1}) − V(q^i)
+        ≤ B := u'ᵀg(u') − ½‖u' − u^i‖²_M (convexity: V(q^i) ≥ V(q^{i+1}) − Δt u'ᵀ∇V(q^{i+1})), and at the
+        solution of the velocity solve u'ᵀg = Σ λ_α b_α + Σ f_αᵀT_α u' ≤ 0 (complementarity λ_α (J_α u' − b_α) = 0
+        with targets b_α = −max(g, 0)/Δt·(…) ≤ 0, maximal dissipation of the friction polygon, G u' = 0 and the
+        spring rows met exactly), hence E' ≤ E − ½‖u' − u^i‖²_M − ½ΔqᵀHΔq. The midpoint scheme
+        q' = q + ½Δt(u_h + u') instead gives E' − E = ½(u' − u^i)ᵀM(u^i − u_h) + ½Σλ_α J_α u_h + ½Σλ_α J_α u'
+        − ½ΔqᵀHΔq, whose first term has no sign for the projected u_h (the measured rises; see
+        ``half_step_projection``). The premises fail for a Gauss–Seidel stopped early (the joint rows, the
+        spring rows and the contact rows are each met only at the sweep that visits them): the exact joint
+        solve at the end makes G u' = 0 and the spring rows exact; the contact complementarity then holds to
+        the solve's accuracy only, which gave rises of up to 4e-16 J on the clamped bent fibre (1.1e-9 J) at
+        ``contact_tolerance`` and 6e-16 J at 1e-6 m/s, tracked by B to 1 % (B is :attr:`StepStats` ``energy_bound``):
+        ``exact_final_solve`` removes them. Measured (``benchmarks/bench_energy_ledger.py``, clamped bent fibre,
+        E0 = 1.14e-9 J, 300 steps): largest single-step change +1.5e-22 J with and without push-out (no rising
+        step; before: +1.2e-12 J and a period-3 limit cycle at rest with push-out, +7.6e-10 J without),
+        penetration over steps 150–300 0.00 µm (before 3.8 µm). Split push-out (``penetration_recovery``): it
+        moves the positions by Δt(u_pos − u') beyond the velocity solve, which the bound does not cover (its
+        potential-energy change has no sign); ``push_out_slop`` keeps it off the nm-deep penetrations that the
+        first-order t_i gaps of rotating segments report, and ``exact_final_solve`` keeps tolerance-sized
+        sinking from accumulating into deeper ones (the resting stack: 38 nm accumulated at 1e-5 m/s, then a
+        push-out step gained 4e-6 of its energy).
+    sweep_budget : row visits (default 1,000,000) of the last pass's velocity and push-out solves under
+        ``end_velocity_positions``: a solve with R rows (contacts + joints) may run max(``qp_iterations``,
+        budget/R) sweeps and then stops at ``small_system_tolerance`` (default 1e-6 m/s) instead of
+        ``contact_tolerance``. Small systems therefore run to convergence (clamped bent fibre: up to ≈ 15,000
+        sweeps in the first steps, median 142; at the 60-sweep cap its solves ended 4.5 mm/s off, the fibre
+        sank 22 µm and the push-out pumped energy); on the reference scene (≈ 2 M rows) the cap stays
+        ``qp_iterations``. 0 switches it off.
+    exact_final_solve : default True, under ``end_velocity_positions``, systems of at most 100 bodies: the
+        velocity solve's answer is replaced by the exact solution of its problem on the Gauss–Seidel's active
+        set (dense KKT of M + SᵀCS with the joint rows, the rows with λ > 0 as equalities, sticking friction
+        as T u = 0, sliding friction along its direction on the polygon), with rows leaving (λ < 0) or joining
+        (bound violated) the set and friction switching between sticking (outside the polygon: slides) and
+        sliding (accelerating its contact: sticks) until every sign condition holds, at most 20 rounds;
+        redundant rows (two segments' end rows at one joint) are solved in least squares, inconsistent ones
+        leave the set. When no such set is found the Gauss–Seidel answer is kept (:data:`EXACT_FAILURES`
+        counts the reasons; the clamped bent fibre: 9–12 of 300 steps, all with B < 0).
+    push_out_slop : fraction of the radius (default 1e-3, 35 nm at 70 µm) a penetration at t_i must exceed
+        before the split push-out acts on it, under ``end_velocity_positions`` (the rows' t_i gaps are first
+        order: the clamped bent fibre reported 0.2 pm–3 nm depths every step, and pushing them out raised
+        its energy by up to 3e-16 J per step).
     separating_candidates : coupled mode, default True: a penetrating pair (g < 0) that the persistence filter
         (eq. 8.9) drops because it separates at u⁻ is kept as a candidate row, which the coupled solve turns
         into a row as soon as its current velocities close it (the active set of eq. 8.9 evaluated at the
@@ -751,6 +809,8 @@ class StepStats:
     qp_capped: int = 0  # coupled mode: contact solves of the step that hit the sweep cap (qp_iterations)
     qp_residual: float = 0.0  # coupled mode: largest final sweep residual of the step's solves, m/s
     harmonisation_iterations: int = 0
+    energy_bound: float = float("nan")  # J, end_velocity_positions: B of the step's velocity solve (nan: none)
+    exact_solves: int = 0  # end_velocity_positions: velocity solves replaced by the exact final solve
     contact_rows: int = 0  # coupled mode: rows of the last contact solve, from the start + added during it
     candidate_rows: int = 0  # coupled mode: candidate pairs not rows from the start
     promoted_rows: int = 0  # of those, added during the solves of the step (sum)
@@ -832,15 +892,31 @@ def _fail(reason):
     return None
 
 
-def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, mu_inner, max_dof=600, rounds=20):
+def _polygon_radius(px: np.ndarray, py: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(k,) distance from the origin to the boundary of the convex friction polygon (vertices px, py, CCW, per unit
+    λ) along the directions of the (k, 2) vectors f (0 for a frictionless law)."""
+    if not len(px) or np.hypot(px, py).max() == 0.0:
+        return np.zeros(len(f))
+    qx, qy = np.roll(px, -1), np.roll(py, -1)
+    nx, ny = qy - py, px - qx  # outward edge normals (CCW polygon)
+    h = nx * px + ny * py
+    d = f / np.maximum(np.linalg.norm(f, axis=1), 1e-300)[:, None]
+    nd = d[:, 0:1] * nx[None, :] + d[:, 1:2] * ny[None, :]
+    t = np.where(nd > 1e-300, h[None, :] / np.where(nd > 1e-300, nd, 1.0), np.inf)
+    return t.min(1)
+
+
+def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=600, rounds=20):
     """The velocity solve's problem solved exactly (dense KKT) on the active set the Gauss–Seidel found
-    (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target, a sticking contact (tangential
-    speed below 1e-9 m/s at the Gauss–Seidel result) T u = 0, a sliding one keeps the direction of its
-    friction impulse with magnitude ∝ λ; joints and their spring rows exactly. Rows whose λ comes out
-    negative leave the set, bounds violated by more than 1e-12 m/s join it (``rounds`` times at most).
-    Returns (u (S, 6), λ, friction) or None when the system is larger than ``max_dof`` or the result does not
-    satisfy every sign condition (λ ≥ 0, sticking friction inside μ_inner λ, sliding friction not
-    accelerating, bounds met)."""
+    (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target (targets (rows,) m/s), a sticking
+    contact (friction strictly inside the polygon λ·conv{μ_β d_β} at the Gauss–Seidel answer) T u = 0, a sliding
+    one keeps the direction and ratio to λ of its friction impulse; the joints J u = target and their spring
+    rows (``joints``: :meth:`ChainSolver._joint_rows`) exactly, M at R_mid. Rows whose λ comes out negative
+    leave the set, rows whose bound is violated by more than 1e-12 m/s join it, sticking friction outside the
+    polygon slides (on the polygon along its direction), sliding friction that would accelerate its contact
+    sticks, until nothing changes (at most ``rounds`` times). Returns (u (S, 6), λ (rows,), friction (rows, 2))
+    or None (the reason counted in :data:`EXACT_FAILURES`) when the system has more than ``max_dof`` degrees of
+    freedom or no such set was found."""
     jk, jl, jrk, jrl, jt, jc, jw0, _ = joints
     body, partner = rows.body, rows.partner
     used = np.unique(np.concatenate([body, partner[partner >= 0], jk[jk >= 0], jl]))
@@ -894,7 +970,9 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, mu
     active = lam > 0
     ratio = np.zeros((nr, 2))
     ratio[active] = fr[active] / lam[active, None]
-    stick = active & (np.linalg.norm(ratio, axis=1) < mu_inner * (1.0 - 1e-6))
+    px, py = polygon
+    frictional = len(px) > 0 and np.hypot(px, py).max() > 0.0
+    stick = active & (np.linalg.norm(ratio, axis=1) < _polygon_radius(px, py, ratio) * (1.0 - 1e-6))
     for _ in range(rounds):
         A = np.nonzero(active)[0]
         st = stick[A]
@@ -947,21 +1025,22 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, mu
         if viol.any():
             active |= viol
             ratio[viol] = 0.0
-            stick |= viol & (mu_inner > 0)
+            stick |= viol & frictional
             changed = True
         # friction: a sticking force outside the inner cone slides (its direction, on the cone), a sliding
         # force that would accelerate its contact sticks
-        out_cone = np.linalg.norm(f_s, axis=1) > mu_inner * np.maximum(lam_a[st], 0.0)
+        rho = _polygon_radius(px, py, f_s)
+        out_cone = np.linalg.norm(f_s, axis=1) > rho * np.maximum(lam_a[st], 0.0)
         if out_cone.any():
             r = Ast[out_cone]
             f = f_s[out_cone]
-            ratio[r] = mu_inner * f / np.maximum(np.linalg.norm(f, axis=1), 1e-300)[:, None]
+            ratio[r] = rho[out_cone, None] * f / np.maximum(np.linalg.norm(f, axis=1), 1e-300)[:, None]
             stick[r] = False
             changed = True
         vt = np.stack([J[1, Asl] @ u, J[2, Asl] @ u], 1)
         fv = (ratio[Asl] * vt).sum(1)
         acc = fv > 1e-9 * np.linalg.norm(ratio[Asl], axis=1) * np.linalg.norm(vt, axis=1)
-        if acc.any() and mu_inner > 0:
+        if acc.any() and frictional:
             stick[Asl[acc]] = True
             changed = True
         elif acc.any():
@@ -1065,12 +1144,6 @@ class ChainSolver:
         self._bvh = None  # rebuilt every step: its capsule radii carry each segment's speculative margin
         self._speed = None
         self._mu = options.friction.generators()
-        px, py = self._mu
-        if len(px) and np.hypot(px, py).max() > 0:  # inner radius of the friction polygon (per unit λ)
-            qx, qy = np.roll(px, -1), np.roll(py, -1)
-            self._mu_inner = float(np.min(np.abs(px * qy - py * qx) / np.hypot(qx - px, qy - py)))
-        else:
-            self._mu_inner = 0.0
         self._warm = None  # (sorted keys, λ, friction) of the last step's contact solution (warm start)
         self._impulses = None
         self._promoted = 0  # candidate rows the last coupled solve added
@@ -1081,7 +1154,7 @@ class ChainSolver:
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
         self._bound = None  # end_velocity_positions: the last step's energy bound B (J, see _energy_bound)
         self._budgeted = False  # the last coupled solve ran under the small-system sweep budget
-        self._continued = 0  # end_velocity_positions: continued velocity solves of the last step
+        self._continued = 0  # end_velocity_positions: exact final solves of the last step
 
     @staticmethod
     def _writable(a):
@@ -1647,7 +1720,7 @@ class ChainSolver:
                 if o.exact_final_solve and self._impulses is not None:
                     exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
                                                np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
-                                               self._pass_setup[2], self._mu_inner)
+                                               self._pass_setup[2], self._mu)
                     if exact is not None:
                         u_vel, lam[:] = exact[0], exact[1]
                         self._impulses = (exact[1].copy(), exact[2])
@@ -1715,7 +1788,8 @@ class ChainSolver:
         new = ChainState(x_new, R_new, v_new, w_new, state.time + dt)
         st = StepStats(time=new.time, seconds=secs, newton_iterations=newton, qp_sweeps=sweeps_max,
                        qp_capped=self._qp_capped, qp_residual=self._qp_residual,
-                       harmonisation_iterations=o.harmonisation_iterations)
+                       harmonisation_iterations=o.harmonisation_iterations,
+                       energy_bound=float("nan") if self._bound is None else self._bound, exact_solves=self._continued)
         st.kinetic_energy = kinetic_energy(model, new)
         st.potential_energy = potential_energy(model, new, g)
         st.spring_energy = spring_energy(model, new)
