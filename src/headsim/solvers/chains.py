@@ -94,6 +94,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.linalg
 
 from headsim.errors import DivergenceError, ParameterError
 from headsim.solvers._kernels import chains as K
@@ -1009,13 +1010,22 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
         Ks = K * sc[:, None] * sc[None, :]
         bs = b * sc
         tol = 1e-10 * max(np.abs(bs).max(), 1e-300)
+        # one LU of K with a small negative diagonal δ on the multiplier block (regular even with redundant rows),
+        # then proximal-point refinement y ← y + K_δ⁻¹(b − K y), which converges to a solution of K y = b when
+        # one exists (a least-norm-like one for redundant rows) and stalls when the rows are inconsistent
+        Kd = Ks.copy()
+        Kd[N:, N:] -= 1e-10 * np.eye(len(Kd) - N)
         try:
-            y = np.linalg.solve(Ks, bs)
-            ok = np.isfinite(y).all() and np.abs(Ks @ y - bs).max() <= tol
-        except np.linalg.LinAlgError:
-            ok = False
-        if not ok:
-            y = np.linalg.lstsq(Ks, bs, rcond=1e-13)[0]
+            lu = scipy.linalg.lu_factor(Kd, check_finite=False)
+        except (ValueError, np.linalg.LinAlgError):
+            return _fail("singular")
+        y = np.zeros(len(bs))
+        for _ in range(8):
+            r = bs - Ks @ y
+            if np.abs(r).max() <= tol:
+                break
+            y = y + scipy.linalg.lu_solve(lu, r, check_finite=False)
+        ok = np.isfinite(y).all() and np.abs(Ks @ y - bs).max() <= tol
         sol = y * sc
         u = sol[:N]
         if not ok and np.abs(Ks @ y - bs).max() > tol:
@@ -1745,9 +1755,14 @@ class ChainSolver:
                 # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met its
                 # stopping rule with a positive bound is solved on, from its own impulses, to a 10× tighter rule
                 if o.exact_final_solve and self._impulses is not None:
-                    exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
-                                               np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
-                                               self._pass_setup[2], self._mu)
+                    from headsim.solvers.contact_qp import _blas_controller
+
+                    # one BLAS thread: the dense systems are small (a 300 × 300 LU took 0.1 s instead of 1 ms with
+                    # the BLAS threads competing with the Numba ones on 2 loaded cores)
+                    with _blas_controller().limit(limits=1, user_api="blas"):
+                        exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
+                                                   np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
+                                                   self._pass_setup[2], self._mu)
                     if exact is not None:
                         u_vel, lam[:] = exact[0], exact[1]
                         self._impulses = (exact[1].copy(), exact[2])
