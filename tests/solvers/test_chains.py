@@ -451,7 +451,8 @@ def test_fibre_held_bent_by_its_contact_stays_out_of_it():
     (``ChainOptions.half_step_projection``, default) the penetration over steps 150–300 stays below half a
     fibre radius (measured 0.11 r; end-of-step plane distances of the segment axes are part of
     StepStats.max_penetration); with the former first half step the fibre sits 6.1 r (213 µm) inside the
-    plane (measured, asserted too: the test tells the two schemes apart)."""
+    plane (measured, asserted too: the test tells the two schemes apart). With ``end_velocity_positions``
+    (default; the rows' gaps in StepStats are then those at t_i) 0.00 µm (measured)."""
     pen = _clamped_fibre_bent_onto_plane()
     assert pen[150:].max() < 0.5 * R_FIBRE
     old = _clamped_fibre_bent_onto_plane(half_step_projection=False, end_velocity_positions=False)

@@ -813,7 +813,8 @@ class StepStats:
     potential_energy: float = 0.0
     spring_energy: float = 0.0
     max_joint_gap: float = 0.0
-    max_penetration: float = 0.0  # m: −min of the last pass's mid-step row gaps and the end-of-step obstacle gaps
+    max_penetration: float = 0.0  # m: −min of the last pass's row gaps (mid-step; end_velocity_positions: at t_i,
+    # first order) and the end-of-step obstacle gaps
     contacts: int = 0
     fibre_contacts: int = 0
     obstacle_contacts: int = 0
