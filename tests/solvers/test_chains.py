@@ -480,7 +480,7 @@ def test_fibre_held_bent_by_its_contact_never_gains_energy(recovery):
     at the defaults (with and without the split push-out): no single step of the 300 from its release, the
     resting fibre's steps included, raises the total energy (kinetic + gravity + joint springs) by more
     than :data:`BENT_FIBRE_ROUND_OFF` of the initial energy. Passes with ``end_velocity_positions`` and
-    ``exact_final_solve`` (the defaults; measured: largest single-step change +1.5e-22 J with and without the
+    ``exact_final_solve`` (the defaults; measured: largest single-step change +3.3e-23 J with and without the
     push-out, no rising step); failed with the projected midpoint half step alone (largest rise 1.2e-12 J with
     push-out, +7.6e-10 J without, and a period-3 limit cycle at rest; ``benchmarks/bench_energy_ledger.py``)."""
     _, e = _clamped_fibre_bent_onto_plane(energies=True, penetration_recovery=recovery)

@@ -593,7 +593,8 @@ class ChainOptions:
         bent onto a plane by its springs (``tests/solvers/test_chains.py``) 6.1 r → 0.11 r; resting 4-layer
         stack: largest single-step energy rise −3e-9 → +1.0e-7 of its energy (1e-6 allowed), sink 0.0016 →
         0.0008 r; ``test_anchored_chain_…`` and ``test_energy_never_increases_for_inelastic_impacts``
-        unchanged; 11–14 ms per step on the 7 × 30 strand either way (2 shared cores). Open (strict xfail
+        unchanged; 11–14 ms per step on the 7 × 30 strand either way (2 shared cores). Was open, now resolved by
+        ``end_velocity_positions`` (strict xfail, removed:
         ``test_fibre_held_bent_by_its_contact_never_gains_energy``; ledger: ``benchmarks/bench_energy_ledger.py``):
         the projected scheme is not monotone in energy on the clamped bent fibre (R_c = 0.2 m, ε = 0,
         E0 = 1.14e-9 J); the former scheme is (largest single-step rise 4.5e-22 J, round-off). Measured, per
@@ -649,7 +650,7 @@ class ChainOptions:
         the solve's accuracy only, which gave rises of up to 4e-16 J on the clamped bent fibre (1.1e-9 J) at
         ``contact_tolerance`` and 6e-16 J at 1e-6 m/s, tracked by B to 1 % (B is :attr:`StepStats` ``energy_bound``):
         ``exact_final_solve`` removes them. Measured (``benchmarks/bench_energy_ledger.py``, clamped bent fibre,
-        E0 = 1.14e-9 J, 300 steps): largest single-step change +1.5e-22 J with and without push-out (no rising
+        E0 = 1.14e-9 J, 300 steps): largest single-step change +3.3e-23 J with and without push-out (no rising
         step; before: +1.2e-12 J and a period-3 limit cycle at rest with push-out, +7.6e-10 J without),
         penetration over steps 150–300 0.00 µm (before 3.8 µm). Split push-out (``penetration_recovery``): it
         moves the positions by Δt(u_pos − u') beyond the velocity solve, which the bound does not cover (its
@@ -681,7 +682,9 @@ class ChainOptions:
         sliding (accelerating its contact: sticks) until every sign condition holds, at most 20 rounds;
         redundant rows (two segments' end rows at one joint) are solved in least squares, inconsistent ones
         leave the set. When no such set is found the Gauss–Seidel answer is kept (:data:`EXACT_FAILURES`
-        counts the reasons; the clamped bent fibre: 9–12 of 300 steps, all with B < 0).
+        counts the reasons; the clamped bent fibre: 10 of 300 steps, 'inconsistent', none of them rising).
+        The dense systems are solved with one LU (a small negative diagonal on the multiplier block,
+        proximal refinement for redundant rows) with BLAS held to one thread.
     push_out_slop : fraction of the radius (default 1e-3, 35 nm at 70 µm) a penetration at t_i must exceed
         before the split push-out acts on it, under ``end_velocity_positions`` (the rows' t_i gaps are first
         order: the clamped bent fibre reported 0.2 pm–3 nm depths every step, and pushing them out raised
