@@ -33,6 +33,19 @@ the commits up to the one that added this paragraph; same process command, alter
   0.84 → 0.80 s per step (within the noise; the changes act on the ≈ 2 M pairs of the full scene),
   per-body 6.2 / 6.5 s, one fibre at a time 9.9 / 9.5 s.
 
+Branch ``energy10`` (issue 10, ``ChainOptions.end_velocity_positions`` with ``end_velocity_predictor`` =
+"previous", ``sweep_budget``, ``exact_final_solve``; before = commit 6ce31d0's source tree, same script and
+venv, alternating runs, ``--fibres 120 --segments 50 --settle 5 --steps 2 --coupled-only --geometry former``;
+2 cores shared with other jobs, so the wall times follow the load): before 0.44 / 0.49 / 0.47 s per step wall,
+0.85 / 0.94 / 0.90 s CPU (load 0.9–2.0; two busy threads), 6.8 / 1.64 s wall (load 3.2–3.8); after 0.78 / 0.76 /
+0.78 / 0.78 s wall, 0.76–0.82 s CPU (load 1.7–4.1; one busy thread in every run, also with
+``end_velocity_positions=False``, whose states are bitwise the former ones: 0.71 s wall, 0.71 s CPU at
+load 2.0, against 0.47 s wall, 0.90 s CPU for the former tree 6 s later; a serial Numba kernel timed in both
+trees at load 3.6 ran at the same speed, so the thread count is the machine's, not the code's). Per step, after:
+contacts 0.39–0.47 s, integration 0.05–0.06 s (the projection QP is skipped; before 0.05–0.24 s), detection
+0.20 s. The small-system paths (sweep budget, exact solve) do not act on this scene (31 k rows, 6,000
+segments). State at t = 7 ms: max joint gap 23 µm (before 4.5 µm), max penetration 23.5 µm (before 18.5 µm).
+
 Branch ``gs`` (issue 10: joint rows J u = 0 in the contact solve, ``joint_gap_fraction`` = 0; stopping rule
 ``contact_tolerance`` = 1e-5 m/s with the 60-sweep cap; the rows' gather in one Numba pass). Same session,
 alternating runs, before = commit dbd7b37 (its source tree, same benchmark script), ``--geometry former``:
