@@ -241,8 +241,9 @@ def test_table_8_1_no_friction_gives_the_smallest_box(helical_runs):
     assert n / i < GROUP_THRESHOLD
 
 
-@pytest.mark.xfail(strict=True, reason="Table 8.1's iso ≈ aniso (0.99) is not reproduced: iso/aniso = 1.072 "
-                   "here (issue 10's half-step projection and separating candidates; with the projection alone 0.993, "
+@pytest.mark.xfail(strict=True, reason="Table 8.1's iso ≈ aniso (0.99) is not reproduced: iso/aniso = 1.070 "
+                   "here with end_velocity_positions (issue 10's default; 1.072 with the projected midpoint step, its "
+                   "half-step projection and separating candidates; with the projection alone 0.993, "
                    "and 0.981 / 0.948 / 1.074 with 2 / 3 / 4 contact_domains: the chaotic trajectory moves; before "
                    "both 1.107, 1.06 after joint_gap_fraction = 0, 0.88 before), 0.85 at 19 × 30, 0.74 at 61 × 50 "
                    "(then; the anisotropic strand is still swinging at 0.7 s)")
