@@ -265,7 +265,7 @@ class _FitRunner:
 
             condensed = condense_fit(problem)
 
-            def fitter(_problem, f, warm_start=None, progress=None):
+            def fitter(_problem, f, warm_start=None):
                 return condensed_fit(condensed, f)
 
             self.fitter = fitter
@@ -298,7 +298,7 @@ class _FitRunner:
 
     def _record(self, f: float, r: FitResult | None, error: Exception | None) -> FitResult | None:
         if error is not None:
-            if not self.fits and not self.failed and f == self._first:
+            if not self.fits and not self.failed:   # the search's first fit: nothing to bracket from
                 raise error
             self.failed.append(f"{f:.2f} N: {error}")
             return None
@@ -313,7 +313,6 @@ class _FitRunner:
         """Fit every force (each warm-started from the nearest force solved before this round); a fit
         that does not converge gives None (the very first fit of a search raises instead)."""
         warm = {f: self.warm_start(f) for f in forces}
-        self._first = forces[0] if not self.fits and not self.failed else None
         out = {}
         if self.workers == 1 or len(forces) == 1:   # one force: here, with Newton progress
             for f in forces:

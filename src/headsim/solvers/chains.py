@@ -884,24 +884,15 @@ def _spin_carried(w: np.ndarray, R: np.ndarray, R_mid: np.ndarray, inertia: np.n
     return np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / inertia, R_mid, momentum)
 
 
-def _skew(r: np.ndarray) -> np.ndarray:
-    """(k, 3, 3) cross-product matrices [r]× of (k, 3) vectors."""
-    z = np.zeros(len(r))
-    return np.stack([np.stack([z, -r[:, 2], r[:, 1]], 1), np.stack([r[:, 2], z, -r[:, 0]], 1),
-                     np.stack([-r[:, 1], r[:, 0], z], 1)], 1)
-
-
 def _tangent_frames(axis: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(k, 3) t₁, t₂ of the coupled kernel's friction frames (``_kernels.chains._frame``: t₁ from the axis)."""
-    t1 = axis - (axis * n).sum(1)[:, None] * n
-    l1 = np.linalg.norm(t1, axis=1)
-    bad = l1 < 1e-9
-    if bad.any():
-        helper = np.where((np.abs(n[bad, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-        t1[bad] = helper - (helper * n[bad]).sum(1)[:, None] * n[bad]
-        l1[bad] = np.linalg.norm(t1[bad], axis=1)
-    t1 = t1 / l1[:, None]
-    return t1, np.cross(n, t1)
+    """(k, 3) t₁, t₂ of the coupled kernel's friction frames, from the kernel's own
+    ``_kernels.chains._frame`` (t₁ from the segment axis), so the exact solve's friction rows are the
+    Gauss–Seidel's."""
+    frames = [K._frame(np.ascontiguousarray(a), np.ascontiguousarray(b)) for a, b in zip(axis, n)]
+    if not frames:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    t1, t2 = zip(*frames)
+    return np.array(t1), np.array(t2)
 
 
 EXACT_FAILURES: dict = {}  # reason -> count of _exact_final_solve results that were not used (diagnostics)
@@ -956,17 +947,16 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
     nj = len(jl)
     S = np.zeros((3 * nj, N))
     G = np.zeros((3 * nj, N))
-    skk, skl = _skew(jrk), _skew(jrl)
     for j in range(nj):
         l = 6 * loc[jl[j]]
         S[3 * j:3 * j + 3, l + 3:l + 6] = np.eye(3)
         G[3 * j:3 * j + 3, l:l + 3] = -np.eye(3)
-        G[3 * j:3 * j + 3, l + 3:l + 6] = skl[j]
+        G[3 * j:3 * j + 3, l + 3:l + 6] = K.skew(jrl[j])
         if jk[j] >= 0:
             k = 6 * loc[jk[j]]
             S[3 * j:3 * j + 3, k + 3:k + 6] = -np.eye(3)
             G[3 * j:3 * j + 3, k:k + 3] = np.eye(3)
-            G[3 * j:3 * j + 3, k + 3:k + 6] = -skk[j]
+            G[3 * j:3 * j + 3, k + 3:k + 6] = -K.skew(jrk[j])
     Cb = np.zeros((3 * nj, 3 * nj))
     for j in range(nj):
         Cb[3 * j:3 * j + 3, 3 * j:3 * j + 3] = jc[j]
@@ -998,23 +988,23 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
         st = stick[A]
         na, ns = len(A), int(st.sum())
         Ast, Asl = A[st], A[~st]
-        K = np.zeros((N + 3 * nj + na + 2 * ns,) * 2)
-        K[:N, :N] = Mt
-        K[:N, N:N + 3 * nj] = -G.T
+        kkt = np.zeros((N + 3 * nj + na + 2 * ns,) * 2)
+        kkt[:N, :N] = Mt
+        kkt[:N, N:N + 3 * nj] = -G.T
         Jn = J[0, A]
         eff = Jn.copy()  # a sliding row's impulse: λ (n + friction ratio · (t₁, t₂))
         eff[~st] += ratio[Asl, 0:1] * J[1, Asl] + ratio[Asl, 1:2] * J[2, Asl]
-        K[:N, N + 3 * nj:N + 3 * nj + na] = -eff.T
+        kkt[:N, N + 3 * nj:N + 3 * nj + na] = -eff.T
         Ts = np.concatenate([J[1, Ast], J[2, Ast]])
-        K[:N, N + 3 * nj + na:] = -Ts.T
-        K[N:N + 3 * nj, :N] = G
-        K[N + 3 * nj:N + 3 * nj + na, :N] = Jn
-        K[N + 3 * nj + na:, :N] = Ts
+        kkt[:N, N + 3 * nj + na:] = -Ts.T
+        kkt[N:N + 3 * nj, :N] = G
+        kkt[N + 3 * nj:N + 3 * nj + na, :N] = Jn
+        kkt[N + 3 * nj + na:, :N] = Ts
         b = np.concatenate([rhs, jt.reshape(-1), targets[A], np.zeros(2 * ns)])
         # equilibrate (velocities in m/s, impulses in N s differ by many orders), then solve; redundant rows (two
         # segments' end rows at one joint) make K singular: least squares, which must still meet every equation
-        sc = 1.0 / np.sqrt(np.maximum(np.abs(K).max(1), 1e-300))
-        Ks = K * sc[:, None] * sc[None, :]
+        sc = 1.0 / np.sqrt(np.maximum(np.abs(kkt).max(1), 1e-300))
+        Ks = kkt * sc[:, None] * sc[None, :]
         bs = b * sc
         tol = 1e-10 * max(np.abs(bs).max(), 1e-300)
         # one LU of K with a small negative diagonal δ on the multiplier block (regular even with redundant rows),
