@@ -88,3 +88,96 @@ def test_a_solve_that_stalls_at_a_jump_ends_only_below_the_stall_tolerance(stall
     assert not res.converged
     assert res.z[0] <= c and res.z[0] == pytest.approx(c, abs=1e-9)
     assert res.gradient_norm == pytest.approx(1.0 - c, rel=1e-6)
+
+
+@pytest.mark.parametrize("only_after_full", [True, False])
+def test_exact_hessian_only_after_full_steps_returns_to_the_projected_one_after_a_cut_step(only_after_full):
+    """Limits 0.3 (cut), 1 (full), 0.4 (cut), then 1: with ``exact_only_after_full_steps`` the
+    iteration after the second cut step uses the projected Hessian only; without it (the former,
+    sticky rule) the exact one is tried on every iteration after the first full step."""
+    calls, marks = [], []
+    energy, gradient, hessian, limit = _problem([0.3, 1.0, 0.4], calls)
+    opts = NewtonOptions(force_tolerance=1e-12, try_exact_hessian=True, exact_after_full_step=True,
+                         exact_only_after_full_steps=only_after_full, linear_solver="direct")
+    res = minimize_newton(energy, gradient, hessian, np.array([0.2, 0.9, 2.0]), np.ones(3, bool), opts,
+                          step_limit=limit, progress=lambda it, g, tol: marks.append(len(calls)))
+    per_iteration = [calls[a:b] for a, b in zip(marks, marks[1:] + [len(calls)])]
+    assert per_iteration[0] == [True] and per_iteration[1] == [True]   # no full step yet
+    assert per_iteration[2][0] is False                                 # after the full step: exact first
+    assert (per_iteration[3] == [True]) is only_after_full              # after the cut step
+    assert np.allclose(res.z, A, atol=1e-10)
+
+
+def test_pcg_meets_its_tolerance_and_reports_an_indefinite_matrix():
+    import scipy.sparse as sp
+
+    from headsim.solvers.newton import pcg
+
+    rng = np.random.default_rng(0)
+    n = 200
+    lap = sp.diags([-np.ones(n - 1), 2.0 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1], format="csr")
+    b = rng.standard_normal(n)
+    x, its, ok = pcg(lap, b, lambda r: r, 1e-8, 500)
+    assert ok and np.linalg.norm(lap @ x - b) <= 1e-8 * np.linalg.norm(b)
+    # the exact inverse as preconditioner: one iteration
+    inv = np.linalg.inv(lap.toarray())
+    x, its, ok = pcg(lap, b, lambda r: inv @ r, 1e-10, 5)
+    assert ok and its == 1
+    # an indefinite matrix: reported as not converged, not as a solution
+    indefinite = sp.diags(np.where(np.arange(n) % 2 == 0, 1.0, -1.0), format="csr")
+    x, its, ok = pcg(indefinite, b, lambda r: r, 1e-8, 500)
+    assert not ok
+
+
+def _coupled_quartic(n=60, seed=1):
+    """E(z) = 1/2 z^T K z + 1/4 sum c_i z_i^4 - f^T z: K an SPD chain stiffness (coupled unknowns), a
+    stiffening quartic term (Hessian K + diag(3 c z^2), SPD, changing with z); a step limit that cuts the
+    first 12 steps (0.1 ... 0.7), then lets them through."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(seed)
+    K = sp.diags([-np.ones(n - 1), 2.05 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1], format="csr") * 10.0
+    c = rng.uniform(50.0, 500.0, n)
+    f = rng.uniform(-20.0, 20.0, n)
+
+    def energy(z):
+        return float(0.5 * z @ (K @ z) + 0.25 * np.sum(c * z**4) - f @ z)
+
+    def gradient(z):
+        return K @ z + c * z**3 - f
+
+    def hessian(z, project=True):
+        return (K + sp.diags(3.0 * c * z * z)).tocsr()
+
+    cuts = iter(np.linspace(0.1, 0.7, 12))
+    return energy, gradient, hessian, (lambda z, dz: next(cuts, 1.0))
+
+
+def test_lagged_factorization_reaches_the_same_minimiser_with_fewer_factorisations():
+    """While the step limit cuts the steps, CG on an earlier Hessian's factor replaces most
+    factorisations (``NewtonResult.amg_setups`` counts them, ``cg_iterations`` the CG work); the solve
+    converges to the same minimiser as the one that factorises every Hessian."""
+    results = {}
+    for lagged in (False, True):
+        energy, gradient, hessian, limit = _coupled_quartic()
+        opts = NewtonOptions(force_tolerance=1e-10, relative_tolerance=0.0, linear_solver="direct",
+                             lagged_factorization=lagged)
+        results[lagged] = minimize_newton(energy, gradient, hessian, np.zeros(60), np.ones(60, bool), opts,
+                                          step_limit=limit)
+    exact, lag = results[False], results[True]
+    assert lag.converged and exact.converged
+    assert np.allclose(lag.z, exact.z, rtol=0, atol=1e-10 / 10.0)
+    assert lag.cg_iterations > 0
+    assert lag.amg_setups < lag.iterations
+    # 12 cut steps: at most every other of them factorised (a refactorisation follows a CG solve that
+    # needed more than refactor_iterations, or failed), then every full step's system is factorised
+    assert lag.amg_setups <= lag.iterations - 12 + 6
+
+
+def test_lagged_factorization_options_are_checked():
+    from headsim.errors import ParameterError
+
+    for bad in (dict(lagged_rtol=0.0), dict(lagged_rtol=1.0), dict(lagged_max_iterations=0),
+                dict(refactor_iterations=-1)):
+        with pytest.raises(ParameterError):
+            NewtonOptions(**bad)

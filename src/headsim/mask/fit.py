@@ -157,7 +157,20 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   74 kPa, mean 13.1 kPa (load 2-4 with other jobs: 24.2 s, 95 iterations). Before the Newton solve
   waited with the exact Hessian until CCD let a full step through
   (:attr:`headsim.solvers.newton.NewtonOptions.exact_after_full_step`): 39.8 s and 141 iterations at
-  load 3-4; 126 iterations in a same-load comparison, single-threaded ipctk. Where the
+  load 3-4; 126 iterations in a same-load comparison, single-threaded ipctk. Since then
+  (``LAGGED_NEWTON``): while CCD cuts the steps the Newton systems are solved by CG on an earlier
+  Hessian's SuperLU factor (0.11 s per factorisation against 2 ms per forward/back substitution), and
+  the exact Hessian is tried only after full steps
+  (:attr:`headsim.solvers.newton.NewtonOptions.lagged_factorization`, ``exact_only_after_full_steps``).
+  Six fits in one process, same session, idle (cold 10 / 15 N, 14 N from 15, 30 / 20 / 5 N from 10;
+  s / Newton iterations): before 11.8/61, 20.6/98, 6.3/26, 31.0/131, 18.3/78, 8.0/38 (95.9 s, 432);
+  lagged factorisation alone 86.2 s (443; 30 N 39.2 s/168: 110 iterations after the first full step,
+  40 of them with an exact Hessian that was no descent direction); both 8.8/60, 23.2/121, 3.7/19,
+  24.2/132, 16.1/81, 5.1/34 (81.2 s, 447); the exact Hessian only after full steps without the
+  lagged factorisation 96.4 s (440). The iteration counts follow the path (cold 15 N: 98-121
+  over these variants), the cost per iteration falls from 0.22 to 0.18 s. At 30 N two equilibria
+  are reached from 10 N depending on the path (leak 53.8 and 47.0 L/min, contact area 16.9 and
+  17.1 cm2, both to the force tolerance). Where the
   time goes (cProfile, cold 15 N): SuperLU 59 % (0.13 s per factorisation of the 10.3k free
   unknowns; the cushion's ring of 4 mm tets is a cyclic chain of ~100-unknown cross-sections, 1.95 M
   of the factor's 2.6 M entries; a METIS nested-dissection order gives the same fill, MKL Pardiso
@@ -437,6 +450,10 @@ FRICTION_SLIP_FRACTION = 1e-2
 CONTACT_LAYER = 5e-5
 #: Newton iterations of one barrier-contact solve (collision-limited steps while contacts form)
 BARRIER_MAXIT = 300
+#: barrier contact: CG on an earlier Hessian's factor while CCD cuts the steps, and the exact Hessian only
+#: after full steps (NewtonOptions.lagged_factorization, exact_only_after_full_steps; module doc,
+#: "Barrier contact"); False: every Hessian factorised, the exact one tried from the first full step on
+LAGGED_NEWTON = True
 #: per-dof residual, times the strap force, at which a barrier solve that stalls is accepted
 #: (NewtonOptions.stall_tolerance): ipctk's improved-max collision set is not continuous where a
 #: pair's closest feature changes. Measured on face_pop01 x nasal-M at 15 N (population face): the
@@ -1079,6 +1096,8 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float, progress=No
     barrier = p.options.contact == "barrier"
     opts = QuasiStaticOptions(newton=NewtonOptions(relative_tolerance=1e-10, try_exact_hessian=EXACT,
                                                    exact_after_full_step=barrier,
+                                                   exact_only_after_full_steps=barrier and LAGGED_NEWTON,
+                                                   lagged_factorization=barrier and LAGGED_NEWTON,
                                                    max_iterations=BARRIER_MAXIT if barrier else MAXIT,
                                                    stall_tolerance=STALL_TOL * force_scale if barrier else None),
                               max_contact_updates=max(p.options.max_contact_updates,
