@@ -285,7 +285,9 @@ def test_draped_strand_sinks_less_than_a_fibre_radius():
     and ``separating_candidates`` (defaults) 25.3 µm (0.72 r; mean 2.4 µm), and the exact end-of-step
     capsule overlaps (every 10th step) 5.3 µm against 43 µm (measured). With ``end_velocity_positions`` (default;
     the rows' gaps in StepStats are then first-order gaps at t_i, not mid-step gaps) 8.8 µm (0.25 r; mean
-    2.4 µm; max joint gap 7.7 µm against 3.4 µm, measured with a sweep budget of 1,000,000)."""
+    2.4 µm; max joint gap 7.7 µm against 3.4 µm, measured with a sweep budget of 1,000,000); at the
+    default ``sweep_budget`` = 100,000 4.6 µm (0.13 r; mean 2.0 µm; max joint gap 7.9 µm; measured, and
+    8.8 µm reproduced with ``sweep_budget=1_000_000`` on the same tree; one chaotic trajectory each)."""
     scene = build_drape_scene("sphere-helical", "aniso", n_fibres=7, segments=30)
     solver = ChainSolver(scene.options)
     state = scene.state
