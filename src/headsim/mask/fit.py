@@ -450,6 +450,12 @@ FRICTION_SLIP_FRACTION = 1e-2
 CONTACT_LAYER = 5e-5
 #: Newton iterations of one barrier-contact solve (collision-limited steps while contacts form)
 BARRIER_MAXIT = 300
+#: volume floor of the cushion tets (J_floor, J_onset, kappa / mu; headsim.solvers.compaction): the effective
+#: solid of a hollow cushion has no bottoming-out stiffness, and at strap forces of 40 N and more its
+#: elements were crushed through J = 0 (identity000 x nasal-S, 42 N: nine inverted cushion tets, min det F
+#: -0.20; the fit failed). Onset 0.3 lies below every cushion J seen in the demo's solves up to 30 N
+#: (0.48 at 30 N, line-search trials included), so the barrier leaves those fits unchanged.
+CUSHION_COMPACTION = (0.1, 0.3, 1.0)
 #: barrier contact: CG on an earlier Hessian's factor while CCD cuts the steps, and the exact Hessian only
 #: after full steps (NewtonOptions.lagged_factorization, exact_only_after_full_steps; module doc,
 #: "Barrier contact"); False: every Hessian factorised, the exact one tried from the first full step on
@@ -881,11 +887,15 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
     # shell tets only translate rigidly with the driver: their material does not enter the answer
     model = fem_from_tetmesh(combined, {REGION_TISSUE: tissue_mat, REGION_CUSHION: cushion_mat,
                                         REGION_SHELL: cushion_mat})
+    # the effective-solid cushion must not be crushed through J = 0 (CUSHION_COMPACTION)
+    from dataclasses import replace as _replace
+
+    from headsim.solvers.compaction import CompactionBarrier
+
+    model = _replace(model, compaction=CompactionBarrier(tet_region == REGION_CUSHION, *CUSHION_COMPACTION))
     e_cushion = cm.youngs_modulus
     if placed.tet_modulus is not None:
         # per-section modulus of a homogenised membrane cushion (MaskModel.tet_modulus)
-        from dataclasses import replace as _replace
-
         e_tet = np.concatenate([np.full(tissue.n_tets, options.tissue_modulus), placed.tet_modulus])
         nu = np.where(tet_region == REGION_TISSUE, options.tissue_poisson, cm.poisson_ratio)
         mu = e_tet / (2.0 * (1.0 + nu))

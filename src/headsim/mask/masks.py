@@ -127,7 +127,9 @@ def effective_cushion_modulus(membrane_modulus: float, wall_thickness: float, cu
 #: inside a real cushion (1 kPa at 10 cmH2O) and membrane stretching at contact stiffen it, and
 #: soft silicone gel cushions lie at about 10–100 kPa, so 50 kPa is an order-of-magnitude value
 #: (not fitted to any result). nu = 0.45: silicone is nearly incompressible, but a hollow cushion as
-#: a structure is not; 0.45 also keeps linear tets free of volumetric locking.
+#: a structure is not; 0.45 also keeps linear tets free of volumetric locking. The fit adds a volume
+#: floor to the cushion tets (:data:`headsim.mask.fit.CUSHION_COMPACTION`, :mod:`headsim.solvers.compaction`):
+#: the effective solid has no bottoming-out stiffness of its own and was crushed through J = 0 above 40 N.
 CUSHION_SILICONE = CushionMaterial(
     youngs_modulus=50e3, poisson_ratio=0.45, density=1100.0, name="silicone cushion (effective solid)",
     source="order-of-magnitude effective modulus: membrane bending estimate 3-26 kPa "

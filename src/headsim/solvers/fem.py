@@ -23,6 +23,7 @@ from headsim.errors import MeshError, ParameterError
 from headsim.mesh.tet import TetMesh
 from headsim.solvers._assembly import ElementAssembler
 from headsim.solvers._kernels import fem as _k
+from headsim.solvers.compaction import CompactionBarrier
 from headsim.solvers.materials import Material
 
 
@@ -59,6 +60,8 @@ class FemModel:
     external_force : (n, 3) float64, N, constant load
     body : (n,) int32 body id
     rayleigh_stiffness : float, s, stiffness-proportional damping (D = beta K at rest) for dynamics
+    compaction : optional :class:`headsim.solvers.compaction.CompactionBarrier`, a volume floor of the
+        tets it selects (homogenised hollow solids that must not be crushed through J = 0)
     """
 
     rest_positions: np.ndarray
@@ -70,6 +73,7 @@ class FemModel:
     external_force: np.ndarray
     body: np.ndarray
     rayleigh_stiffness: float = 0.0
+    compaction: CompactionBarrier | None = None
     grads: np.ndarray = field(init=False, repr=False)
     volumes: np.ndarray = field(init=False, repr=False)
     _assembler: ElementAssembler = field(init=False, repr=False)
@@ -99,6 +103,8 @@ class FemModel:
             raise ParameterError("Lamé parameters must be > 0 Pa (Poisson ratio in (0, 0.5))")
         if not np.isfinite(arrays["external_force"]).all():
             raise ParameterError("external_force contains NaN/inf")
+        if self.compaction is not None and self.compaction.tets.shape != (m,):
+            raise ParameterError(f"compaction barrier selects {self.compaction.tets.shape} tets, the model has {m}")
         for k, v in arrays.items():
             v.flags.writeable = False
             object.__setattr__(self, k, v)
@@ -113,9 +119,12 @@ class FemModel:
         return self.lame_lambda + self.shear_modulus
 
     def elastic_energy(self, positions: np.ndarray) -> float:
-        """Stored elastic energy, J."""
-        return float(_k.snh_energy(np.ascontiguousarray(positions, dtype=np.float64), self.tets, self.grads,
-                                   self.volumes, self.shear_modulus, self._snh_lambda))
+        """Stored elastic energy, J (inf where the compaction barrier's floor is reached)."""
+        x = np.ascontiguousarray(positions, dtype=np.float64)
+        e = float(_k.snh_energy(x, self.tets, self.grads, self.volumes, self.shear_modulus, self._snh_lambda))
+        if self.compaction is not None:
+            e += self.compaction.energy(x, self.tets, self.grads, self.volumes, self.shear_modulus)
+        return e
 
     def energy(self, positions: np.ndarray) -> float:
         """Elastic energy minus the work of the constant external load, J."""
@@ -124,8 +133,10 @@ class FemModel:
     def elastic_gradient(self, positions: np.ndarray) -> np.ndarray:
         """dE_elastic/dx (n, 3), N (minus the internal elastic forces)."""
         out = np.zeros((self.n_vertices, 3))
-        _k.snh_gradient(np.ascontiguousarray(positions, dtype=np.float64), self.tets, self.grads, self.volumes,
-                        self.shear_modulus, self._snh_lambda, out)
+        x = np.ascontiguousarray(positions, dtype=np.float64)
+        _k.snh_gradient(x, self.tets, self.grads, self.volumes, self.shear_modulus, self._snh_lambda, out)
+        if self.compaction is not None:
+            self.compaction.add_gradient(x, self.tets, self.grads, self.volumes, self.shear_modulus, out)
         return out
 
     def gradient(self, positions: np.ndarray) -> np.ndarray:
@@ -147,6 +158,9 @@ class FemModel:
         else:
             _k.snh_hessian_values(x, self.tets, self.grads, self.volumes, self.shear_modulus, self._snh_lambda,
                                   False, vals)
+        if self.compaction is not None:
+            self.compaction.add_element_hessians(x, self.tets, self.grads, self.volumes, self.shear_modulus, project,
+                                                 vals)
         return vals
 
     def forces(self, positions: np.ndarray, velocities: np.ndarray) -> np.ndarray:
