@@ -849,6 +849,7 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
     from headsim.collide import TriangleBVH
     from headsim.mesh.tissue import extrude_tissue_layer
     from headsim.solvers.contact import surface_vertex_areas
+    from headsim.solvers.compaction import CompactionBarrier
     from headsim.solvers.fem import fem_from_tetmesh
     from headsim.solvers.materials import Material
 
@@ -885,17 +886,15 @@ def prepare_fit(face: SurfaceMesh, mask: MaskModel, options: FitOptions = FitOpt
     cm = placed.material
     cushion_mat = Material(cm.youngs_modulus, cm.poisson_ratio, cm.density, name=cm.name)
     # shell tets only translate rigidly with the driver: their material does not enter the answer
-    model = fem_from_tetmesh(combined, {REGION_TISSUE: tissue_mat, REGION_CUSHION: cushion_mat,
-                                        REGION_SHELL: cushion_mat})
     # the effective-solid cushion must not be crushed through J = 0 (CUSHION_COMPACTION)
-    from dataclasses import replace as _replace
-
-    from headsim.solvers.compaction import CompactionBarrier
-
-    model = _replace(model, compaction=CompactionBarrier(tet_region == REGION_CUSHION, *CUSHION_COMPACTION))
+    model = fem_from_tetmesh(combined, {REGION_TISSUE: tissue_mat, REGION_CUSHION: cushion_mat,
+                                        REGION_SHELL: cushion_mat},
+                             compaction=CompactionBarrier(tet_region == REGION_CUSHION, *CUSHION_COMPACTION))
     e_cushion = cm.youngs_modulus
     if placed.tet_modulus is not None:
         # per-section modulus of a homogenised membrane cushion (MaskModel.tet_modulus)
+        from dataclasses import replace as _replace
+
         e_tet = np.concatenate([np.full(tissue.n_tets, options.tissue_modulus), placed.tet_modulus])
         nu = np.where(tet_region == REGION_TISSUE, options.tissue_poisson, cm.poisson_ratio)
         mu = e_tet / (2.0 * (1.0 + nu))

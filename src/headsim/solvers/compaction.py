@@ -79,6 +79,13 @@ class CompactionBarrier:
     def _s(self, j):
         return (j - self.floor) / (self.onset - self.floor)
 
+    def _slopes(self, j):
+        """b'(s) and b''(s) of the active tets' J (s kept above 0 for the logarithm)."""
+        s = np.maximum(self._s(j), np.finfo(float).tiny)
+        db = -2.0 * (s - 1.0) * np.log(s) - (s - 1.0) ** 2 / s
+        d2b = -2.0 * np.log(s) - 4.0 * (s - 1.0) / s + (s - 1.0) ** 2 / s**2
+        return db, d2b
+
     def energy(self, x, tets, grads, volumes, mu) -> float:
         """Sum of kappa V b(s), J; inf where a selected tet reached the floor."""
         ids, _, j = self._active(x, tets, grads)
@@ -101,8 +108,7 @@ class CompactionBarrier:
         ids, f, j = self._active(x, tets, grads)
         if not len(ids):
             return
-        s = np.maximum(self._s(j), np.finfo(float).tiny)
-        db = -2.0 * (s - 1.0) * np.log(s) - (s - 1.0) ** 2 / s
+        db, _ = self._slopes(j)
         w = self.scale * mu[ids] * volumes[ids] * db / (self.onset - self.floor)
         np.add.at(out, tets[ids], w[:, None, None] * self._dj_dx(f, grads[ids]))
 
@@ -112,9 +118,7 @@ class CompactionBarrier:
         if not len(ids):
             return
         d = self.onset - self.floor
-        s = np.maximum(self._s(j), np.finfo(float).tiny)
-        db = -2.0 * (s - 1.0) * np.log(s) - (s - 1.0) ** 2 / s
-        d2b = -2.0 * np.log(s) - 4.0 * (s - 1.0) / s + (s - 1.0) ** 2 / s**2
+        db, d2b = self._slopes(j)
         k = self.scale * mu[ids] * volumes[ids]
         g = grads[ids]
         dj = self._dj_dx(f, g).reshape(len(ids), 12)

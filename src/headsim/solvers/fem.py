@@ -206,8 +206,10 @@ class FemModel:
 
 
 def fem_from_tetmesh(mesh: TetMesh, material: Material | Mapping[int, Material], *,
-                     gravity: np.ndarray | None = None, rayleigh_stiffness: float = 0.0, body: int = 0) -> FemModel:
-    """Build a stable neo-Hookean FEM model; per-region materials use ``mesh.tet_region``.
+                     gravity: np.ndarray | None = None, rayleigh_stiffness: float = 0.0, body: int = 0,
+                     compaction: CompactionBarrier | None = None) -> FemModel:
+    """Build a stable neo-Hookean FEM model; per-region materials use ``mesh.tet_region``
+    (``compaction``: :attr:`FemModel.compaction`).
 
     Lumped mass: each tet gives density x volume / 4 to each of its vertices.
     """
@@ -228,4 +230,4 @@ def fem_from_tetmesh(mesh: TetMesh, material: Material | Mapping[int, Material],
         ext += mass[:, None] * np.asarray(gravity, dtype=np.float64)
     ext[fixed] = 0.0
     return FemModel(mesh.vertices, mesh.tets, mass, mu, lam, fixed, ext, np.full(n, body, np.int32),
-                    rayleigh_stiffness)
+                    rayleigh_stiffness, compaction)

@@ -352,7 +352,6 @@ class LaggedFactorization:
         return x
 
 
-
 def solve_spd(a: sp.csr_matrix, b: np.ndarray, method: str, near_null: np.ndarray | None = None,
               cg_rtol: float = 1e-2, cache: dict | None = None) -> np.ndarray:
     """Solve the SPD system a x = b by SuperLU ("direct") or pyamg SA-preconditioned CG ("amg-cg").
@@ -532,9 +531,10 @@ def _minimize_newton(energy, gradient, hessian, z0, free, options, near_null, wh
             t["amg_setup"] = pre.setup_seconds
             t["cg"] = pre.solve_seconds
         if lagged is not None:
-            return NewtonResult(z, it, gnorm, e, method, t, lagged.cg_iterations, lagged.factorizations, tol)
-        return NewtonResult(z, it, gnorm, e, method, t, (pre.iterations - cg0) if pre else 0,
-                            (pre.setups - setups0) if pre else 0, tol)
+            cg, setups = lagged.cg_iterations, lagged.factorizations
+        else:
+            cg, setups = ((pre.iterations - cg0), (pre.setups - setups0)) if pre is not None else (0, 0)
+        return NewtonResult(z, it, gnorm, e, method, t, cg, setups, tol)
 
     for it in range(options.max_iterations):
         if progress is not None:
