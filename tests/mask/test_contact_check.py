@@ -161,10 +161,11 @@ def test_barrier_with_friction_reaches_the_contact_term():
 def test_barrier_friction_converges_where_the_plain_lagged_iteration_cycles(monkeypatch, tmp_path):
     """Coarse problem, mu = 0.5, 10 N: the plain lagged friction iteration (take the lagged normal
     forces and tangent planes at the last solution) does not settle within the fit's 30 outer
-    updates (with every inner Newton Hessian factorised, fit.LAGGED_NEWTON = False, as when it was
-    found); the relaxed one (BarrierContact friction_lag="adaptive", the default) converges, and its
-    fit is an equilibrium: the contact force balances the strap force, and the friction forces on the
-    skin stay inside Coulomb's cone of the barrier's normal forces in total."""
+    updates (with every inner Newton Hessian factorised, fit.LAGGED_NEWTON = False, and the
+    tight-inclusion CCD, as when it was found); the relaxed one (BarrierContact
+    friction_lag="adaptive", the default) converges, and its fit is an equilibrium: the contact force
+    balances the strap force, and the friction forces on the skin stay inside Coulomb's cone of the
+    barrier's normal forces in total."""
     from headsim.errors import ConvergenceError
     from headsim.mask.fit import problem_fit
     from headsim.mask.report import write_fit_report
@@ -198,11 +199,13 @@ def test_barrier_friction_converges_where_the_plain_lagged_iteration_cycles(monk
 
     def plain(self, *args, **kwargs):
         kwargs["friction_lag"] = "plain"
+        kwargs["ccd"] = "tight-inclusion"
         plain_init(self, *args, **kwargs)
 
     monkeypatch.setattr(barrier.BarrierContact, "__init__", plain)
-    # the cycle was found with every Newton Hessian factorised; with the lagged factorisation
-    # (fit.LAGGED_NEWTON) the inner solves take another path and the plain iteration settles here
+    # the cycle was found with every Newton Hessian factorised and the inclusion CCD; with the lagged
+    # factorisation (fit.LAGGED_NEWTON) or the additive CCD the inner solves take other paths and the
+    # plain iteration settles here
     monkeypatch.setattr(fit_module, "LAGGED_NEWTON", False)
     with pytest.raises(ConvergenceError, match="30 updates"):
         problem_fit(p, 10.0)

@@ -208,3 +208,38 @@ def test_pieces_of_one_body_do_not_repel_each_other():
     assert one.minimum_distance(v) == np.inf and not one.vertices_within(v, dhat).any()
     with pytest.raises(ParameterError, match="bodies"):
         BarrierContact(v, tri, dhat, 1.0, bodies=np.zeros(3, dtype=int))
+
+
+@pytest.mark.parametrize("ccd", ["additive", "tight-inclusion"])
+def test_both_ccd_methods_stop_a_point_falling_through_a_plate_short_of_it(ccd):
+    """A vertex 1 cm above the plate moved 2 cm straight down: the additive CCD stops where its gap is
+    10 % of the start (fraction (1 - 0.1) x 0.5 = 0.45), the inclusion method closer; both short of 0.5."""
+    v, tri = _vertex_over_plate(0.01)
+    bc = BarrierContact(v, tri, 1e-3, 1.0, ccd=ccd)
+    v1 = v.copy()
+    v1[3:, 2] -= 0.02
+    frac = bc.step_fraction(v, np.zeros(0), v1, np.zeros(0))
+    if ccd == "additive":
+        assert frac == pytest.approx(0.45, rel=1e-6)
+    else:
+        assert 0.45 < frac < 0.5
+    assert bc.ccd_fallbacks == 0
+
+
+def test_an_additive_step_that_crosses_is_recomputed_by_tight_inclusion(monkeypatch):
+    """Where the surfaces stepped by the additive CCD's fraction cross (its floating-point hazard), the
+    fraction of the provably conservative inclusion method is returned instead."""
+    v, tri = _vertex_over_plate(0.01)
+    bc = BarrierContact(v, tri, 1e-3, 1.0)
+    v1 = v.copy()
+    v1[3:, 2] -= 0.02
+    inclusion = BarrierContact(v, tri, 1e-3, 1.0, ccd="tight-inclusion").step_fraction(v, None, v1, None)
+    monkeypatch.setattr(bc._ipc, "has_intersections", lambda mesh, vertices: True)
+    assert bc.step_fraction(v, None, v1, None) == inclusion
+    assert bc.ccd_fallbacks == 1
+
+
+def test_unknown_ccd_method_is_refused():
+    v, tri = _vertex_over_plate(0.01)
+    with pytest.raises(ParameterError, match="ccd"):
+        BarrierContact(v, tri, 1e-3, 1.0, ccd="exact")

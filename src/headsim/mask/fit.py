@@ -456,8 +456,9 @@ BARRIER_MAXIT = 300
 #: -0.20; the fit failed). Onset 0.3 lies below every cushion J seen in the demo's solves up to 30 N
 #: (0.48 at 30 N, line-search trials included), so the barrier leaves those fits unchanged.
 CUSHION_COMPACTION = (0.1, 0.3, 1.0)
-#: barrier contact: CG on an earlier Hessian's factor while CCD cuts the steps, and the exact Hessian only
-#: after full steps (NewtonOptions.lagged_factorization, exact_only_after_full_steps; module doc,
+#: barrier contact: CG on an earlier Hessian's factor while CCD cuts the steps, the exact Hessian only
+#: after full steps, and its (often indefinite) system by truncated CG on that factor
+#: (NewtonOptions.lagged_factorization, exact_only_after_full_steps, lagged_exact_cg; module doc,
 #: "Barrier contact"); False: every Hessian factorised, the exact one tried from the first full step on
 LAGGED_NEWTON = True
 #: per-dof residual, times the strap force, at which a barrier solve that stalls is accepted
@@ -1107,6 +1108,7 @@ def _solve(problem: FitProblem, drivers, x0, u0, force_scale: float, progress=No
                                                    exact_after_full_step=barrier,
                                                    exact_only_after_full_steps=barrier and LAGGED_NEWTON,
                                                    lagged_factorization=barrier and LAGGED_NEWTON,
+                                                   lagged_exact_cg=barrier and LAGGED_NEWTON,
                                                    max_iterations=BARRIER_MAXIT if barrier else MAXIT,
                                                    stall_tolerance=STALL_TOL * force_scale if barrier else None),
                               max_contact_updates=max(p.options.max_contact_updates,
