@@ -131,3 +131,25 @@ def test_fit_reports_newton_progress_until_the_residual_meets_the_tolerance():
     assert its == sorted(its) and len(calls) >= fit.newton_iterations
     last_it, last_g, last_tol = calls[-1]
     assert last_it == fit.newton_iterations and last_g <= last_tol  # the call that ended the solve
+
+
+def test_barrier_start_backs_off_past_a_wall_parallel_to_the_approach():
+    """A skin wall and a cushion wall, both containing the approach axis (z), 20 um apart and overlapping
+    over 2 mm along it: backing the mask off along the approach does not widen their gap until the
+    cushion wall has left the skin wall's extent, so the back-off must grow its steps (the fixed
+    increments of 0.5 dhat - d stopped after 60 steps, 0.3 mm: face_pop07 x nasal-M at 3 mm edges)."""
+    from headsim.mask.fit import barrier_start_offset
+
+    dhat, gap = 5e-5, 2e-5
+    skin = np.array([[0.0, -1e-3, 0.0], [0.0, 1e-3, 0.0], [0.0, 0.0, 2e-3]])
+    cushion = np.array([[gap, -1e-3, 1e-3], [gap, 1e-3, 1e-3], [gap, 0.0, 3e-3]])
+    vertices = np.vstack([skin, cushion])
+    triangles = np.array([[0, 1, 2], [3, 4, 5]])
+    approach = np.array([0.0, 0.0, -1.0])   # the mask moves towards -z onto the face; backing off is +z
+    shift = barrier_start_offset(vertices, triangles, 3, approach, dhat)
+    moved = vertices.copy()
+    moved[3:] -= shift * approach
+    # the cushion wall's lowest point now lies above the skin wall's top, at least dhat / 2 away
+    assert moved[3:, 2].min() > skin[:, 2].max()
+    lowest = moved[3:][np.argmin(moved[3:, 2])]
+    assert np.linalg.norm(lowest - skin[2]) >= 0.5 * dhat

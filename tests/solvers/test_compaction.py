@@ -99,3 +99,28 @@ def test_compaction_parameters_are_checked():
         CompactionBarrier(np.ones(1, bool), 0.1, 0.3, scale=0.0)
     with pytest.raises(ParameterError, match="selects"):
         replace(_model(False), compaction=CompactionBarrier(np.ones(2, bool)))
+
+
+def test_per_tet_floor_and_onset_act_tet_by_tet():
+    """Two congruent tets compressed alike (J = 0.216): the one with (0.1, 0.3) carries mu V b(s), the one
+    with the lower onset 0.2 nothing; at J = 0.09 the first is inadmissible (floor 0.1), the second
+    (floor 0.02, onset 0.2) carries its own barrier."""
+    rest = np.vstack([REST, REST + [0.05, 0.0, 0.0]])
+    tets = np.array([[0, 1, 2, 3], [4, 5, 6, 7]])
+
+    def model(compaction):
+        return FemModel(rest, tets, 1e-3, MU, LAM, np.zeros(8, bool), 0.0, 0, compaction=compaction)
+
+    plain = model(None)
+    both = model(CompactionBarrier(np.ones(2, bool), np.array([0.1, 0.02]), np.array([0.3, 0.2])))
+    vol = 1e-6 / 6
+    x = 0.6 * rest                                  # J = 0.216 in both
+    assert both.elastic_energy(x) - plain.elastic_energy(x) == pytest.approx(MU * vol * _b((0.216 - 0.1) / 0.2),
+                                                                             rel=1e-9)
+    second = model(CompactionBarrier(np.array([False, True]), 0.02, 0.2))
+    x = (0.09 ** (1 / 3)) * rest                    # J = 0.09
+    assert both.elastic_energy(x) == np.inf
+    assert second.elastic_energy(x) - plain.elastic_energy(x) == pytest.approx(MU * vol * _b((0.09 - 0.02) / 0.18),
+                                                                               rel=1e-9)
+    with pytest.raises(ParameterError, match="tet 1"):
+        CompactionBarrier(np.ones(2, bool), np.array([0.1, 0.2]), 0.2)

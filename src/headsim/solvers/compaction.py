@@ -11,7 +11,10 @@ selected tet, the clamped logarithmic barrier of Incremental Potential Contact (
     b(s) = -(s - 1)^2 ln s  (0 < s < 1),  0  (s >= 1),   E_t = inf  (J <= J_floor)
 
 so it is zero (with its first two derivatives) above ``onset`` and infinite at ``floor``: Newton's line
-search keeps every selected tet above the floor and the element cannot invert. kappa_t (Pa) is
+search keeps every selected tet above the floor and the element cannot invert. Floor and onset may
+differ per tet: the mask fit (:mod:`headsim.mask.fit`) also floors its one-layer soft tissue, whose
+sliver tets were crushed through J = 0 under the nasal bridge at 40-45 N (identity001 x nasal-S), at
+(0.02, 0.1), below every tissue J of its demo fits. kappa_t (Pa) is
 ``scale`` x the tet's shear modulus. Derivatives (dJ/dF = cof F; d2J/dF_ij dF_kl = e_ikm e_jln F_mn):
 
     grad = kappa V b'(s) / D  dJ/dx,     D = J_onset - J_floor
@@ -39,23 +42,38 @@ _EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
 class CompactionBarrier:
     """Volume floor of the tets where ``tets`` is True (see the module doc).
 
-    tets : (m,) bool, the tets it acts on; floor, onset : J_floor < J_onset < 1; scale : kappa / mu
+    tets : (m,) bool, the tets it acts on; floor, onset : J_floor < J_onset < 1, one value for all or
+    (m,) per tet (only the selected tets' entries are used); scale : kappa / mu
     """
 
     tets: np.ndarray
-    floor: float = 0.1
-    onset: float = 0.3
+    floor: float | np.ndarray = 0.1
+    onset: float | np.ndarray = 0.3
     scale: float = 1.0
 
     def __post_init__(self):
-        if not 0.0 <= self.floor < self.onset < 1.0:
-            raise ParameterError(f"compaction barrier needs 0 <= floor < onset < 1, got {self.floor}, {self.onset}")
+        t = np.asarray(self.tets, dtype=bool).copy()
+        if t.ndim != 1:
+            raise ParameterError(f"compaction barrier tets must be an (m,) bool array, got shape {t.shape}")
+        ids = np.flatnonzero(t)
+        try:
+            floors = np.broadcast_to(np.asarray(self.floor, dtype=np.float64), t.shape)[ids]
+            onsets = np.broadcast_to(np.asarray(self.onset, dtype=np.float64), t.shape)[ids]
+        except ValueError:
+            raise ParameterError(f"compaction barrier floor and onset must be scalars or ({len(t)},) arrays") from None
+        bad = ~((floors >= 0.0) & (floors < onsets) & (onsets < 1.0))
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ParameterError(f"compaction barrier needs 0 <= floor < onset < 1, got {floors[k]}, {onsets[k]} "
+                                 f"(tet {ids[k]})")
         if not self.scale > 0:
             raise ParameterError(f"compaction barrier scale must be > 0, got {self.scale}")
-        t = np.asarray(self.tets, dtype=bool).copy()
         t.flags.writeable = False
         object.__setattr__(self, "tets", t)
-        object.__setattr__(self, "_ids", np.flatnonzero(t))
+        object.__setattr__(self, "_ids", ids)
+        object.__setattr__(self, "_floors", floors)
+        object.__setattr__(self, "_onsets", onsets)
+        object.__setattr__(self, "_onset_max", float(onsets.max()) if len(ids) else 0.0)
         object.__setattr__(self, "_subset_cache", [])
 
     def _subset(self, tets, grads):
@@ -66,32 +84,31 @@ class CompactionBarrier:
         return cached[2], cached[3]
 
     def _active(self, x, tets, grads):
-        """(ids, F, J) of the selected tets below the onset."""
+        """(ids, F, J, J_floor, J_onset - J_floor) of the selected tets below their onset."""
         ids = self._ids
         sub_tets, sub_grads = self._subset(tets, grads)
-        if not len(ids) or _k.snh_min_jacobian(x, sub_tets, sub_grads) >= self.onset:  # the usual case: inactive
-            return ids[:0], None, np.zeros(0)
+        if not len(ids) or _k.snh_min_jacobian(x, sub_tets, sub_grads) >= self._onset_max:  # the usual case
+            return ids[:0], None, np.zeros(0), np.zeros(0), np.ones(0)
         f = np.einsum("tai,taj->tij", x[sub_tets], sub_grads)
         j = np.linalg.det(f)
-        below = j < self.onset
-        return ids[below], f[below], j[below]
+        below = j < self._onsets
+        floor = self._floors[below]
+        return ids[below], f[below], j[below], floor, self._onsets[below] - floor
 
-    def _s(self, j):
-        return (j - self.floor) / (self.onset - self.floor)
-
-    def _slopes(self, j):
-        """b'(s) and b''(s) of the active tets' J (s kept above 0 for the logarithm)."""
-        s = np.maximum(self._s(j), np.finfo(float).tiny)
+    @staticmethod
+    def _slopes(s):
+        """b'(s) and b''(s) (s kept above 0 for the logarithm)."""
+        s = np.maximum(s, np.finfo(float).tiny)
         db = -2.0 * (s - 1.0) * np.log(s) - (s - 1.0) ** 2 / s
         d2b = -2.0 * np.log(s) - 4.0 * (s - 1.0) / s + (s - 1.0) ** 2 / s**2
         return db, d2b
 
     def energy(self, x, tets, grads, volumes, mu) -> float:
         """Sum of kappa V b(s), J; inf where a selected tet reached the floor."""
-        ids, _, j = self._active(x, tets, grads)
+        ids, _, j, floor, d = self._active(x, tets, grads)
         if not len(ids):
             return 0.0
-        s = self._s(j)
+        s = (j - floor) / d
         if not (s > 0).all():
             return np.inf
         return float(np.sum(self.scale * mu[ids] * volumes[ids] * (-(s - 1.0) ** 2 * np.log(s))))
@@ -105,20 +122,19 @@ class CompactionBarrier:
 
     def add_gradient(self, x, tets, grads, volumes, mu, out) -> None:
         """Add the barrier's gradient to ``out`` (n, 3), N (no-op where nothing is below the onset)."""
-        ids, f, j = self._active(x, tets, grads)
+        ids, f, j, floor, d = self._active(x, tets, grads)
         if not len(ids):
             return
-        db, _ = self._slopes(j)
-        w = self.scale * mu[ids] * volumes[ids] * db / (self.onset - self.floor)
+        db, _ = self._slopes((j - floor) / d)
+        w = self.scale * mu[ids] * volumes[ids] * db / d
         np.add.at(out, tets[ids], w[:, None, None] * self._dj_dx(f, grads[ids]))
 
     def add_element_hessians(self, x, tets, grads, volumes, mu, project: bool, out) -> None:
         """Add the barrier's element Hessians to ``out`` (m, 12, 12), N/m; PSD part only when ``project``."""
-        ids, f, j = self._active(x, tets, grads)
+        ids, f, j, floor, d = self._active(x, tets, grads)
         if not len(ids):
             return
-        d = self.onset - self.floor
-        db, d2b = self._slopes(j)
+        db, d2b = self._slopes((j - floor) / d)
         k = self.scale * mu[ids] * volumes[ids]
         g = grads[ids]
         dj = self._dj_dx(f, g).reshape(len(ids), 12)
