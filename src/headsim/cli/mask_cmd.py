@@ -207,7 +207,7 @@ def _leak_text(result) -> str:
 
 def search_workers(workers: str, contact: str, mode: str) -> int:
     """--workers: an integer >= 1, or "auto": two fits at a time with the barrier contact in the
-    nonlinear mode on a machine with two or more cores (the demo search 95 -> 61 s; module doc of
+    nonlinear mode on a machine with two or more cores (the demo search 95 -> 61 s then; module doc of
     :mod:`headsim.mask.search`, "Parallel search"), one otherwise (a planes fit depends on its warm start,
     so the rounds of a parallel search can change its answer, and its fits are too short to pay for the
     worker processes; condensed fits always run one at a time)."""

@@ -136,7 +136,10 @@ force along the approach axis) as a quasi-static finite-element contact problem:
   --forces 2.5,5,8,10,12.5,15,20,30``); leak 2.0 / 1.3 / 0.26 / 0.12 / 0.24 /
   0.31 / 0.14 / 0.23 L/min against 6.4 (2.5 N), 18.1 (15 N) and 53.3 (30 N) frictionless; pitch -0.29
   to -5.2 deg against -0.76 / -5.6 / -9.3; at 15 N area 14.2 against 13.4 cm2, peak 68 against
-  74 kPa; at 30 N 17.3 cm2, 127 kPa. Friction keeps the cushion from rolling at the nasal bridge's
+  74 kPa; at 30 N 17.3 cm2, 127 kPa. With the truncated CG on the exact Hessian and the additive CCD
+  (below; same command, idle): 5 / 5 / 7 / 6 / 6 / 10 / 7 / 7 updates, 66 / 87 / 117 / 123 / 141 / 186
+  / 223 / 285 iterations, 7.9 / 10.7 / 12.9 / 15.1 / 17.0 / 23.4 / 29.9 / 40.0 s, the same leaks; at
+  30 N 17.0 cm2, 125 kPa. Friction keeps the cushion from rolling at the nasal bridge's
   corners, where the frictionless barrier leaks (below). Coarse test problem (mu = 0.5): converged at
   5 / 10 / 15 / 20 / 25 / 30 N. The plain lagged iteration failed the cold 8 N demo fit (30 updates):
   cushion vertices over a skin crease alternated by 270 um, their friction forces by 0.02 N, with
