@@ -105,17 +105,18 @@ def factorisation_section(problem, warm_start) -> None:
     from headsim.solvers import newton
 
     systems = []
-    solve = newton.solve_direct
+    # every factorisation of the Newton solve (solve_direct and the lagged factorisation) goes through it
+    solve = newton._solve_direct_factor
 
     def recording(a, b, *args, **kw):
         systems.append((a, b))
         return solve(a, b, *args, **kw)
 
-    newton.solve_direct = recording
+    newton._solve_direct_factor = recording
     try:
         problem_fit(problem, 15.0, warm_start=warm_start)
     finally:
-        newton.solve_direct = solve
+        newton._solve_direct_factor = solve
     cpu = {"symmetric": 0.0, "pivoting": 0.0}
     fill = {"symmetric": 0, "pivoting": 0}
     res = {"symmetric": 0.0, "pivoting": 0.0}
