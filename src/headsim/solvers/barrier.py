@@ -172,6 +172,7 @@ class BarrierContact:
         if ccd not in ("additive", "tight-inclusion"):
             raise ParameterError(f"ccd must be 'additive' or 'tight-inclusion', got {ccd!r}")
         self.ccd = ccd
+        self._additive = ipctk.AdditiveCCD() if ccd == "additive" else None
         #: steps whose additive-CCD fraction was recomputed by tight inclusion (the stepped surfaces crossed)
         self.ccd_fallbacks = 0
         if friction > 0 and not (friction_slip is not None and np.isfinite(friction_slip) and friction_slip > 0):
@@ -370,9 +371,8 @@ class BarrierContact:
     def step_fraction(self, x0, u0, x1, u1) -> float:
         """Largest fraction of the straight step x0 -> x1 that stays collision-free (CCD, module doc)."""
         v0, v1 = self._surface(x0), self._surface(x1)
-        if self.ccd == "additive":
-            f = float(self._ipc.compute_collision_free_stepsize(self.mesh, v0, v1,
-                                                                narrow_phase_ccd=self._ipc.AdditiveCCD()))
+        if self._additive is not None:
+            f = float(self._ipc.compute_collision_free_stepsize(self.mesh, v0, v1, narrow_phase_ccd=self._additive))
             if not self._ipc.has_intersections(self.mesh, np.asfortranarray(v0 + f * (v1 - v0))):
                 return f
             self.ccd_fallbacks += 1

@@ -84,16 +84,17 @@ class CompactionBarrier:
         return cached[2], cached[3]
 
     def _active(self, x, tets, grads):
-        """(ids, F, J, J_floor, J_onset - J_floor) of the selected tets below their onset."""
+        """(ids, F, s, D) of the selected tets below their onset: s = (J - J_floor) / D, D = J_onset - J_floor."""
         ids = self._ids
         sub_tets, sub_grads = self._subset(tets, grads)
         if not len(ids) or _k.snh_min_jacobian(x, sub_tets, sub_grads) >= self._onset_max:  # the usual case
-            return ids[:0], None, np.zeros(0), np.zeros(0), np.ones(0)
+            return ids[:0], None, np.zeros(0), np.ones(0)
         f = np.einsum("tai,taj->tij", x[sub_tets], sub_grads)
         j = np.linalg.det(f)
         below = j < self._onsets
         floor = self._floors[below]
-        return ids[below], f[below], j[below], floor, self._onsets[below] - floor
+        d = self._onsets[below] - floor
+        return ids[below], f[below], (j[below] - floor) / d, d
 
     @staticmethod
     def _slopes(s):
@@ -105,10 +106,9 @@ class CompactionBarrier:
 
     def energy(self, x, tets, grads, volumes, mu) -> float:
         """Sum of kappa V b(s), J; inf where a selected tet reached the floor."""
-        ids, _, j, floor, d = self._active(x, tets, grads)
+        ids, _, s, _ = self._active(x, tets, grads)
         if not len(ids):
             return 0.0
-        s = (j - floor) / d
         if not (s > 0).all():
             return np.inf
         return float(np.sum(self.scale * mu[ids] * volumes[ids] * (-(s - 1.0) ** 2 * np.log(s))))
@@ -122,19 +122,19 @@ class CompactionBarrier:
 
     def add_gradient(self, x, tets, grads, volumes, mu, out) -> None:
         """Add the barrier's gradient to ``out`` (n, 3), N (no-op where nothing is below the onset)."""
-        ids, f, j, floor, d = self._active(x, tets, grads)
+        ids, f, s, d = self._active(x, tets, grads)
         if not len(ids):
             return
-        db, _ = self._slopes((j - floor) / d)
+        db, _ = self._slopes(s)
         w = self.scale * mu[ids] * volumes[ids] * db / d
         np.add.at(out, tets[ids], w[:, None, None] * self._dj_dx(f, grads[ids]))
 
     def add_element_hessians(self, x, tets, grads, volumes, mu, project: bool, out) -> None:
         """Add the barrier's element Hessians to ``out`` (m, 12, 12), N/m; PSD part only when ``project``."""
-        ids, f, j, floor, d = self._active(x, tets, grads)
+        ids, f, s, d = self._active(x, tets, grads)
         if not len(ids):
             return
-        db, d2b = self._slopes((j - floor) / d)
+        db, d2b = self._slopes(s)
         k = self.scale * mu[ids] * volumes[ids]
         g = grads[ids]
         dj = self._dj_dx(f, g).reshape(len(ids), 12)

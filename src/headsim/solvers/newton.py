@@ -353,19 +353,22 @@ class LaggedFactorization:
         self.factorizations = 0
         self.cg_iterations = 0
 
+    def _usable(self, a) -> bool:
+        """A factor is kept and fits ``a``'s size (a preconditioner for it)."""
+        return self.lu is not None and self.lu.shape == a.shape
+
     def solve(self, a: sp.spmatrix, b: np.ndarray, lagged: bool, keep: bool) -> np.ndarray:
         """x with A x = b: by CG on the kept factor where ``lagged`` and it is usable, else factorised
         (kept for later solves where ``keep``: only factors of SPD, i.e. projected, Hessians). With
         ``exact_rtol`` a system that is not kept (the exact Hessian) is first tried by truncated CG on
         the kept factor (:attr:`NewtonOptions.lagged_exact_cg`)."""
-        if lagged and self.lu is not None and self.lu.shape == a.shape \
-                and self.last_iterations <= self.refactor_iterations:
+        if lagged and self._usable(a) and self.last_iterations <= self.refactor_iterations:
             x, its, ok = pcg(a, b, self.lu.solve, self.rtol, self.max_iterations)
             self.cg_iterations += its
             if ok and np.isfinite(x).all():
                 self.last_iterations = its
                 return x
-        if not keep and self.exact_rtol is not None and self.lu is not None and self.lu.shape == a.shape:
+        if not keep and self.exact_rtol is not None and self._usable(a):
             x, its, _ = pcg(a, b, self.lu.solve, self.exact_rtol, self.exact_max_iterations)
             self.cg_iterations += its
             if np.isfinite(x).all() and float(b @ x) > 0.0:
