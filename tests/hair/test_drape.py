@@ -241,15 +241,19 @@ def test_table_8_1_no_friction_gives_the_smallest_box(helical_runs):
     assert n / i < GROUP_THRESHOLD
 
 
+@pytest.mark.xfail(strict=True, reason="Table 8.1's iso ≈ aniso is not reproduced at this scale: at 0.7 s the "
+                   "ratio is the phase of a transient (see the docstring)")
 def test_table_8_1_isotropic_and_anisotropic_boxes_agree(helical_runs):
     """Table 8.1: the isotropic (μ = 0.47) and anisotropic (wool/wool 0.13 / 0.61 / 0.21) boxes agree
-    within 5 % (seed: 0.99). Measured at the defaults (``end_velocity_positions``, ``sweep_budget`` =
-    100,000): 0.998. Fragile: at 0.7 s the frictional strands have not come to rest (the anisotropic
-    one keeps sliding and swinging on the sphere with its low with-the-scales μ), so the ratio follows
-    the trajectory's details: 1.070 with a sweep budget of 1,000,000, 1.072 with the projected midpoint
-    step and separating candidates, 0.993 with the projection alone, 0.981 / 0.948 / 1.074 with 2 / 3 / 4
-    contact_domains, 1.107 / 1.06 / 0.88 earlier; 0.85 at 19 × 30 and 0.74 at 61 × 50 (then). A solver
-    change that moves it outside the band is to be measured, not waved through."""
+    within 5 % (seed: 0.99). Not reproduced on this reduced scene (strict xfail): at 0.7 s neither frictional
+    strand has come to rest, and the ratio is the phase of a transient. Measured (issue 10, 7 × 30, volumes
+    every 0.1 s from 0.4 to 1.0 s, iso/aniso): plain Gauss–Seidel at 60 sweeps (the former defaults) 0.50,
+    0.61, 0.77, 1.00 (0.7 s), 1.64, 3.22, 5.16; Nesterov-accelerated at 60 sweeps 0.47, 0.53, 0.65, 0.88,
+    1.40, 2.36, 2.28; the defaults (Nesterov, 30 sweeps) 1.072 at 0.7 s. The former pass at 0.998 was the
+    plain solver's curve crossing 1 near 0.7 s; other solver variants gave 0.88–1.11 there (1.070 with a
+    sweep budget of 1,000,000, 0.981 / 0.948 / 1.074 with 2 / 3 / 4 contact_domains, 0.85 at 19 × 30 and
+    0.74 at 61 × 50). Strict: a change that makes it pass is to be measured (is the agreement then
+    robust over time and scale?), not taken as a reproduction."""
     i, a = (_volume_at(helical_runs[m], 0.7) for m in ("iso", "aniso"))
     assert abs(i / a - 1) < SAME_BAND
 

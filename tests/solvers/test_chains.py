@@ -634,6 +634,35 @@ def test_parallel_contact_domains_converge_to_the_same_solution():
     assert np.array_equal(uf, ufp) and np.array_equal(lf, lfp)
 
 
+def test_nesterov_contact_solve_reaches_the_gauss_seidel_solution_in_fewer_sweeps():
+    """ChainOptions.contact_acceleration = "nesterov" (``momentum`` of the coupled kernel: the contact impulses
+    extrapolated after every sweep, with adaptive restart). Extrapolation changes the path, not the fixed
+    point: on a resting pile of 6 × 10 logs, frictionless (one solution), the plain and the accelerated
+    iteration run until a full sweep changes no velocity by more than 1e-13 m/s must give the same twists
+    to 1e-9 m/s (as in the domain test above), the accelerated one in fewer sweeps (measured: 843 against
+    2,307; with friction μ = 0.47 13,552 against 25,579). A capped accelerated solve ends on a plain sweep,
+    so its impulses are admissible: λ ≥ 0 and every friction impulse inside its polygon, |f| ≤ μ λ."""
+    from headsim.solvers._kernels import chains_coupled as KC
+
+    def run(momentum, sweeps, tol, friction):
+        args, _ = _log_pile(layers=10, friction=friction)
+        args[13], args[14] = sweeps, tol
+        sw, change, _ = KC.project_coupled(*args, momentum=momentum)
+        return args[6], args[15], args[16], sw, change
+
+    u0, _, _, sw0, ch0 = run(0.0, 1_000_000, 1e-13, False)
+    u1, _, _, sw1, ch1 = run(1.0, 1_000_000, 1e-13, False)
+    assert ch0 <= 1e-13 and ch1 <= 1e-13
+    np.testing.assert_allclose(u1, u0, rtol=0, atol=1e-9)
+    assert sw1 < sw0
+    f0 = run(0.0, 1_000_000, 1e-13, True)
+    f1 = run(1.0, 1_000_000, 1e-13, True)
+    assert f0[4] <= 1e-13 and f1[4] <= 1e-13 and f1[3] < f0[3]
+    _, lam, fr, sw, _ = run(1.0, 25, 0.0, True)
+    assert sw == 25 and (lam >= 0).all() and (lam > 0).any()
+    assert (np.linalg.norm(fr, axis=1) <= 0.47 * lam * (1 + 1e-12)).all()
+
+
 def test_fibre_domains_are_balanced_and_cut_few_rows():
     """The bisection behind ChainOptions.contact_domains on a ring of 40 fibres (rows only between
     neighbours, 10 rows per neighbour pair) plus an isolated pair and obstacle rows: every domain gets
@@ -667,6 +696,8 @@ def test_options_are_validated():
         ChainOptions(friction_objective="simplex")
     with pytest.raises(ParameterError):
         ChainOptions(contact_coupling="global")
+    with pytest.raises(ParameterError):
+        ChainOptions(contact_acceleration="anderson")
 
 
 def _max_axis_penetration(model, state, field, samples=201):

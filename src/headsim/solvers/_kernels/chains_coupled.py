@@ -252,6 +252,51 @@ def _segment_rows(rows, n, dom, n_domains, out, off):
         pos[d] += 1
 
 
+@njit(cache=True, inline="always")
+def _extrapolate(listed, off, lcnt, nd, lam, lam_prev, lam_start, fr, u, dun, body, partner, MA, MB, W, momentum, k,
+                 restart):
+    """Nesterov extrapolation of the contact impulses after a sweep (``momentum`` of
+    :func:`_coupled_iterate_impl`) over the rows the sweep may have changed (the listed rows: a full sweep
+    lists every row it changed, a partial sweep visits only them). k: sweeps since the last restart;
+    returns the next k (0: restarted, nothing extrapolated)."""
+    dot = 0.0
+    for d in range(nd + 1):
+        for z in range(lcnt[d]):
+            c = listed[off[d] + z]
+            dot += (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[c, 0, 0]
+    k = 0 if (restart or dot < 0.0) else k + 1
+    beta = momentum * (k - 1.0) / (k + 2.0) if k > 1 else 0.0
+    for d in range(nd + 1):
+        for z in range(lcnt[d]):
+            c = listed[off[d] + z]
+            now = lam[c]
+            y = now + beta * (now - lam_prev[c])
+            if y < 0.0:
+                y = 0.0
+            lam_prev[c] = now
+            lam_start[c] = y
+            dl = y - now
+            if dl == 0.0:
+                continue
+            scale = y / now - 1.0 if now > 0.0 else 0.0  # friction in proportion: stays in y·conv{μ_β d_β}
+            dx = fr[c, 0] * scale
+            dy = fr[c, 1] * scale
+            a = body[c]
+            b = partner[c]
+            for q in range(6):
+                du = MA[c, 0, q] * dl
+                u[a, q] += du + MA[c, 1, q] * dx + MA[c, 2, q] * dy
+                dun[a, q] += du
+                if b >= 0:
+                    du = MB[c, 0, q] * dl
+                    u[b, q] -= du + MB[c, 1, q] * dx + MB[c, 2, q] * dy
+                    dun[b, q] -= du
+            lam[c] = y
+            fr[c, 0] += dx
+            fr[c, 1] += dy
+    return k
+
+
 def _coupled_setup_impl(body, partner, normal, lever, partner_lever, mass, R, inertia, joint_k, joint_l, joint_rk,
                         joint_rl, joint_compliance_inv, chain_off, n_listed_rows):
     """Set-up of :func:`_coupled_iterate_impl` that depends only on the geometry (rows, R, joints), not on
@@ -291,7 +336,7 @@ def _coupled_setup_impl(body, partner, normal, lever, partner_lever, mass, R, in
 def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner, normal, lever, partner_lever, target,
                           u, mass, R, inertia, mu_cos, mu_sin, restitution, max_iter, tol, lam_out, fr_out, joint_k,
                           joint_l, joint_rk, joint_rl, joint_target, joint_compliance_inv, joint_w0, chain_off,
-                          n_listed_rows, joints_last, body_part):
+                          n_listed_rows, joints_last, body_part, momentum):
     """The iteration of :func:`project_coupled` on the set-up of :func:`_coupled_setup_impl` (whose
     candidate rows it fills in when it promotes them). Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
     ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
@@ -335,7 +380,19 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     the body's) in parallel, each domain's rows in their order above, and then the cross rows (the reverse
     sweep visits the same sequence backwards: the cross rows first). Rows of different domains share no
     body, so this is one Gauss–Seidel sweep over all rows in that order, whatever the number of threads.
-    Every body in domain 0 (or an empty array): the single sequence, the former iterates bitwise."""
+    Every body in domain 0 (or an empty array): the single sequence, the former iterates bitwise.
+
+    ``momentum`` (0: off, the plain Gauss–Seidel; 1: Nesterov): after every sweep that is followed by another,
+    the contact impulses are extrapolated along their last change (Nesterov 1983; adaptive restart of
+    O'Donoghue & Candès 2015): λ ← max(0, λ_k + β_k (λ_k − λ_{k−1})), β_k = momentum · (k − 1)/(k + 2) with
+    k the sweeps since the last restart, the friction impulses scaled with their normal impulse (so they
+    stay in their polygon λ·conv{μ_β d_β}), and the twists u moved by the extrapolation's impulses; the
+    joints are not extrapolated (each sweep solves them exactly). Restart (k = 0, no extrapolation) when
+    the sweep's own step opposes the extrapolation, Σ_c W_c (λ_c − y_c)(y_c − λ_{c,k−1}) < 0 (y: the
+    extrapolated impulses the sweep started from), and when candidates became rows. The sweep that ends
+    the iteration is not extrapolated, so the result is a Gauss–Seidel iterate (the joints solved, every
+    visited row projected) and the fixed point is the same. Measured on the drape reference scene's
+    solves (``benchmarks/bench_contact_convergence.py``): the same error as 60 plain sweeps in ≈ 20."""
     nc = body.shape[0]
     m = mu_cos.shape[0]
     n_on = nc if n_listed_rows < 0 else min(n_listed_rows, nc)
@@ -420,6 +477,10 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     since_full = 0
     last_full_change = np.inf
     it = 0
+    # momentum: λ after the previous sweep (before its extrapolation) and the extrapolated λ a sweep starts from
+    lam_prev = lam.copy()
+    lam_start = lam.copy()
+    k_mom = 0
     change = 0.0
     while it < sweep_cap:
         it += 1
@@ -620,6 +681,9 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             since_full += 1
             # back to a full sweep when the listed rows have settled, or every 8 partial sweeps
             full = change <= tol or since_full >= 8
+        if momentum > 0.0 and it < sweep_cap:
+            k_mom = _extrapolate(listed, off, lcnt, nd, lam, lam_prev, lam_start, fr, u, dun, body, partner, MA, MB,
+                                 W, momentum, k_mom, n_prom > 0)
     if joints_last:
         # one more joint solve after the last contact visits: u then meets every joint row exactly (the contact
         # rows to the iteration's accuracy); see ``joints_last`` in the docstring
@@ -645,9 +709,11 @@ coupled_iterate_parallel = njit(cache=True, parallel=True)(_coupled_iterate_impl
 
 def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                     restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
-                    joint_compliance_inv, joint_w0, chain_off, n_listed_rows=-1, parallel=False, body_part=None):
+                    joint_compliance_inv, joint_w0, chain_off, n_listed_rows=-1, parallel=False, body_part=None,
+                    momentum=0.0):
     """Set-up and iteration in one call (see :func:`_coupled_iterate_impl` for the arguments and the
-    result); ``parallel``: the ``prange`` versions; ``body_part``: the body domains of the contact sweep."""
+    result); ``parallel``: the ``prange`` versions; ``body_part``: the body domains of the contact sweep;
+    ``momentum``: Nesterov extrapolation (0: plain Gauss–Seidel)."""
     if body_part is None:
         body_part = np.zeros(0, np.int64)
     setup = coupled_setup_parallel if parallel else coupled_setup
@@ -656,7 +722,7 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
                 joint_compliance_inv, chain_off, n_listed_rows)
     return iterate(*pre, body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                    restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
-                   joint_compliance_inv, joint_w0, chain_off, n_listed_rows, False, body_part)
+                   joint_compliance_inv, joint_w0, chain_off, n_listed_rows, False, body_part, float(momentum))
 
 
 def project_coupled_parallel(*args):

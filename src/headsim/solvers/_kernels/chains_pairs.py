@@ -64,7 +64,7 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
         if closing < 0.0:
             closing = 0.0
         if mark_tight:
-            tight = gap < band + closing_factor * closing * dt
+            tight = gap < band - margin + closing_factor * closing * dt
     return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
 
 
@@ -95,8 +95,10 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     touching axes, +y for parallel touching ones), gap g = ‖c_a − c_b‖ − r_a − r_b, contact points
     p_a = c_a − r_a n, p_b = c_b + r_b n and levers p − x. A pair is kept when
     g < band + 0.75 (speed_a + speed_b) Δt with band = ½ band_fraction (r_a + r_b) + margin (m; speed
-    (S,) m/s: each segment's |v| + h|ω|), and marked ``tight`` when g < band + closing_factor · c Δt
-    with c = max(0, −n·(u_a(p_a) − u_b(p_b))) the normal closing speed of the twists u (S, 6) (only with
+    (S,) m/s: each segment's |v| + h|ω|), and marked ``tight`` when g < band − margin + closing_factor · c Δt
+    (the contact band without the speculative margin: a pair that only the margin reaches is a candidate,
+    which the coupled solve turns into a row when its velocities close it) with
+    c = max(0, −n·(u_a(p_a) − u_b(p_b))) the normal closing speed of the twists u (S, 6) (only with
     ``mark_tight``; otherwise, and for an empty u, every kept pair is tight). With u given, pairs that
     separate faster than ``smooth`` (m/s, n·(u_a − u_b) > smooth) are dropped (persistence filter, eq. 8.9),
     except, with ``mark_tight`` = 2, the penetrating ones (g < 0), which are kept as candidates (not tight). Writes the kept rows compactly to the outputs (length ≥ P) and
