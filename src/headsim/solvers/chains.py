@@ -1190,7 +1190,8 @@ class ChainSolver:
         self._promoted = 0  # candidate rows the last coupled solve added
         self._qp_capped = 0  # coupled solves of this step that hit the sweep cap
         self._qp_residual = 0.0  # largest final sweep residual of this step's coupled solves, m/s
-        self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry) of this step
+        self._gathered = None  # (rows, kernel order, rows from the start, gathered geometry, screen) of this step
+        self._screen_ref = None  # (rows, their n·(u_A − u_B) at the detection's u⁻, that u⁻) of this step
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
         self._bound = None  # end_velocity_positions: the last step's energy bound B (J, see _energy_bound)
@@ -1552,8 +1553,15 @@ class ChainSolver:
                 gather = KP.gather_rows_parallel if model.n_segments >= o.parallel_threshold else KP.gather_rows
                 gather(pr, *(np.ascontiguousarray(a) for a in (rows.body, rows.partner, rows.normal, rows.lever,
                                                                 rows.partner_lever)), *geo)
-                self._gathered = (rows, pr, n_rows, geo)
-            _, pr, n_rows, geo = self._gathered
+                # the candidates' normal relative velocities at the detection's u⁻ (screened first candidate test)
+                sr = self._screen_ref
+                if sr is not None and sr[0] is rows and n_rows < n:
+                    screen = (np.ascontiguousarray(sr[1][pr]), sr[2],
+                              np.ascontiguousarray(model.half_length + model.radius))
+                else:
+                    screen = (np.zeros(0), np.zeros((0, 6)), np.zeros(0))
+                self._gathered = (rows, pr, n_rows, geo, screen)
+            _, pr, n_rows, geo, screen = self._gathered
             tg, lam_p, fr_p = np.empty(len(pr)), np.empty(len(pr)), np.empty((len(pr), 2))
             wl, wf = (np.zeros(0), np.zeros((0, 2))) if warm is None else warm
             KP.kernel_row_inputs(pr, gaps, float(beta), float(dt), wl, wf, tg, lam_p, fr_p)
@@ -1588,7 +1596,8 @@ class ChainSolver:
                     cap, tol = n_budget, min(tol, float(o.small_system_tolerance)) * tol_scale
             sw, change, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
                                         float(o.restitution), cap, tol, lam_p,
-                                        fr_p, *joints, n_rows, bool(joints_last), body_part, self._momentum)
+                                        fr_p, *joints, n_rows, bool(joints_last), body_part, self._momentum,
+                                        *screen)
             if change > tol:  # stopped by the sweep cap, not by the stopping rule
                 self._qp_capped += 1
             self._qp_residual = max(self._qp_residual, float(change))
@@ -1727,6 +1736,13 @@ class ChainSolver:
                 self._speed = np.linalg.norm(u_minus[:, :3], axis=1) + model.half_length * np.linalg.norm(
                     u_minus[:, 3:], axis=1)
                 rows = self._detect(model, x_mid, R_mid, dt, obstacles, u_minus)
+                if o.contact_coupling == "coupled":  # the rows' normal relative velocities at this u⁻: the
+                    # coupled kernel screens its first candidate test against them (see _contacts)
+                    ref_vn = np.empty(len(rows.body))
+                    u_ref = np.ascontiguousarray(u_minus)
+                    KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
+                                           u_ref, ref_vn)
+                    self._screen_ref = (rows, ref_vn, u_ref.copy())
                 secs["detection"] += time.perf_counter() - t2
                 t2 = time.perf_counter()
                 Iwi = _inv_inertia_world(model, R_mid) if o.contact_coupling == "per-body" else None
