@@ -761,7 +761,11 @@ class ChainOptions:
     contact_acceleration : coupled mode (the contact solves and the half-step projection): ``"nesterov"``
         (default) extrapolates the contact impulses after every sweep along their last change, with adaptive
         restart (``momentum`` of :func:`headsim.solvers._kernels.chains_coupled._coupled_iterate_impl`); the
-        same fixed point, reached in fewer sweeps. ``"none"``: the plain Gauss–Seidel (the former iterates).
+        same fixed point, reached in fewer sweeps (``benchmarks/bench_contact_convergence.py``, 120 × 50
+        ringlet: after 60 sweeps 0.052 off the converged answer in the kinetic metric against 0.452 plain,
+        the 1e-5 m/s stopping rule met after 656 sweeps against ≈ 3,000; reference scene: 30 accelerated
+        sweeps 0.308 off against 0.344 for the former 60 plain ones). ``"none"``: the plain Gauss–Seidel
+        (with ``qp_iterations=60`` the former iterates, bitwise).
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
