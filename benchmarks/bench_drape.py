@@ -133,6 +133,22 @@ Issue 10, twelfth session (one process per line, machine otherwise idle, same co
   1.80 s). On the captured solves of one step (t = 6 ms) the kernel took 0.25–0.32 s per solve with it,
   0.34–0.40 s without; with the candidates removed 0.14–0.16 s (their O(candidates) set-up and copies,
   the screened tests and the sweeps the promotions add are the rest).
+* and the per-row passes over rows and candidates in parallel (``prange``: the rows' normal velocities, the
+  kernel inputs, the impulse scatter, the warm start), the touched fibres in one Numba pass, the coupled
+  kernel iterating its impulses in place and setting up only the rows' entries of its per-row work arrays
+  (the candidates' when they become rows): **2.68 s** per step (contacts 1.42 s, detection 1.02 s), bitwise
+  the same states.
+
+Later in the reference sequence the candidates grow with the fall speed: the derived default geometry
+(``build_drape_scene("sphere-helical")``, 355 × 100) run from t = 0 takes 1.0 s per step at t = 10 ms, 2.6 s at
+30 ms, 6–7 s at 60 ms (0.6 m/s free fall: 7.4 M candidates, 35 k rows, 4.9–5.7 k contacts). From the same saved
+state at t = 60 ms, 3 steps each (``/tmp`` script, same session): the code before this session (commit d28e51d)
+9.28 s per step (175 k rows), Nesterov + candidate rows 8.30 s, + the per-row passes 6.51 s, + the kernel's
+in-place impulses 5.99 s (same contacts and penetrations in the last three). There the candidates of the
+absolute-speed band cost more than the solves: the fused detection pass 1.3 s, the gather of 7.6 M rows
+0.58 s, the kernel's O(candidates) work in each of the 3 solves. The candidate band is the lever left: it
+grows with |u|Δt of each segment although a falling strand's neighbours move together; bounding the solve's
+velocity change per segment (verified after the solve) instead of assuming the absolute speed would shrink it.
 """
 
 from __future__ import annotations

@@ -1478,9 +1478,7 @@ class ChainSolver:
         target relative anchor velocity −γ d_mid/(½Δt) (γ = ``joint_gap_fraction``; γ = 1 closes the
         mid-step gap d_mid by the step's end, γ = 0 keeps the anchors moving together)."""
         fib = model.segment_fibre
-        touched = np.zeros(model.n_fibres, bool)
-        touched[fib[rows.body]] = True
-        touched[fib[rows.partner[rows.partner >= 0]]] = True
+        touched = KP.touched_fibres(rows.body, rows.partner, fib, model.n_fibres)
         seg = np.nonzero(touched[fib])[0]
         is_root = model.is_root[seg]
         keep = ~is_root | model.anchored[fib[seg]]
@@ -1568,9 +1566,10 @@ class ChainSolver:
             _, pr, n_rows, geo, screen = self._gathered
             tg, lam_p, fr_p = np.empty(len(pr)), np.empty(len(pr)), np.empty((len(pr), 2))
             wl, wf = (np.zeros(0), np.zeros((0, 2))) if warm is None else warm
-            KP.kernel_row_inputs(pr, gaps, float(beta), float(dt), wl, wf, tg, lam_p, fr_p)
-            mc, ms = self._mu
             par = model.n_segments >= o.parallel_threshold
+            (KP.kernel_row_inputs_parallel if par else KP.kernel_row_inputs)(pr, gaps, float(beta), float(dt), wl, wf,
+                                                                             tg, lam_p, fr_p)
+            mc, ms = self._mu
             ps = self._pass_setup
             if ps is None or ps[0] is not rows or ps[1] != pass_key:  # once per harmonisation pass
                 jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, rows, x_mid, R_mid, dt,
@@ -1606,7 +1605,7 @@ class ChainSolver:
                 self._qp_capped += 1
             self._qp_residual = max(self._qp_residual, float(change))
             fr = np.empty((len(lam), 2))
-            KP.scatter_kernel_impulses(pr, lam_p, fr_p, lam, fr)
+            (KP.scatter_kernel_impulses_parallel if par else KP.scatter_kernel_impulses)(pr, lam_p, fr_p, lam, fr)
             sweeps_box[0] = max(sweeps_box[0], int(sw))
             self._promoted = int(promoted)
             self._impulses = (lam.copy(), fr)
@@ -1647,7 +1646,10 @@ class ChainSolver:
         if not len(keys) or not len(k):
             return None
         lam, fr = np.empty(len(k)), np.empty((len(k), 2))
-        KP.warm_start_rows(k, rows.primary, keys, lam0, np.ascontiguousarray(fr0), WARM_START_FRACTION, lam, fr)
+        big = len(k) >= self.options.parallel_threshold
+        (KP.warm_start_rows_parallel if big else KP.warm_start_rows)(k, rows.primary, keys, lam0,
+                                                                     np.ascontiguousarray(fr0), WARM_START_FRACTION,
+                                                                     lam, fr)
         return lam, fr
 
     # -- step ----------------------------------------------------------------------------------------
@@ -1660,6 +1662,8 @@ class ChainSolver:
         t_all = time.perf_counter()
         secs = {"joints": 0.0, "detection": 0.0, "contacts": 0.0, "integration": 0.0}
         S = model.n_segments
+        # per-row passes over the rows and candidates (millions on the reference scene): prange above the threshold
+        row_vn = KP.row_normal_velocity_parallel if S >= o.parallel_threshold else KP.row_normal_velocity
         self._qp_capped = 0
         self._qp_residual = 0.0
         self._continued = 0
@@ -1700,10 +1704,7 @@ class ChainSolver:
                   and o.end_velocity_predictor == "previous"):
                 # the touched fibres' predicted mid-step state: the previous pass's contact-solved twists (the step
                 # moves them with u' for Δt, so q^i + ½Δt u'_previous is nearer its midpoint than the projection)
-                fibt = np.zeros(model.n_fibres, bool)
-                fibt[model.segment_fibre[rows.body]] = True
-                fibt[model.segment_fibre[rows.partner[rows.partner >= 0]]] = True
-                tb = fibt[model.segment_fibre]
+                tb = KP.touched_fibres(rows.body, rows.partner, model.segment_fibre, model.n_fibres)[model.segment_fibre]
                 uh = np.concatenate([vJ, wJ], axis=1)
                 uh[tb] = u_vel[tb]
                 w_hs = np.empty_like(wJ)
@@ -1744,7 +1745,7 @@ class ChainSolver:
                     # coupled kernel screens its first candidate test against them (see _contacts)
                     ref_vn = np.empty(len(rows.body))
                     u_ref = np.ascontiguousarray(u_minus)
-                    KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
+                    row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
                                            u_ref, ref_vn)
                     self._screen_ref = (rows, ref_vn, u_ref.copy())
                 secs["detection"] += time.perf_counter() - t2
@@ -1765,7 +1766,7 @@ class ChainSolver:
                 x_mid0, w_hs0 = x_mid.copy(), w_hs.copy()
                 # row gaps at t_i (first order): the mid-step gaps less the first half step's approach
                 gaps0 = np.empty(len(rows.body))
-                KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
+                row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
                                        np.ascontiguousarray(np.concatenate([x_mid - x, 0.5 * dt * w_hs], axis=1)),
                                        gaps0)
                 gaps0 = rows.gap - gaps0
@@ -1775,7 +1776,7 @@ class ChainSolver:
             else:  # contact points move with the bodies: first-order gap change of the new mid state
                 dq = np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_hs - w_hs0)], axis=1)
                 gaps = np.empty(len(rows.body))
-                KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
+                row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
                 gaps += rows.gap
             gaps_pos = gaps_stat = gaps
             if endvel:
@@ -1843,9 +1844,7 @@ class ChainSolver:
         if endvel and len(rows.body):
             # the touched fibres: q^{i+1} = q^i + Δt u' (both half steps with the velocity solve's twists)
             fib = model.segment_fibre
-            touched = np.zeros(model.n_fibres, bool)
-            touched[fib[rows.body]] = True
-            touched[fib[rows.partner[rows.partner >= 0]]] = True
+            touched = KP.touched_fibres(rows.body, rows.partner, fib, model.n_fibres)
             tb = np.nonzero(touched[fib])[0]
             up = np.ascontiguousarray(u_pos[tb])
             xa, Ra, wa = np.empty((len(tb), 3)), np.empty((len(tb), 3, 3)), np.empty((len(tb), 3))

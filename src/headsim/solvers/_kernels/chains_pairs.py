@@ -117,12 +117,11 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     return k
 
 
-@njit(cache=True)
-def row_normal_velocity(body, partner, normal, lever, partner_lever, u, out):
+def _row_normal_velocity_impl(body, partner, normal, lever, partner_lever, u, out):
     """out[c] = n_c · (u_A(p_A) − u_B(p_B)) (m/s) for rows c with bodies A = body, B = partner (−1: a static
     obstacle, zero velocity) and their levers, for twists u (S, 6). With u = (Δx, Δθ) per body it is the
     first-order change of the rows' gaps (m)."""
-    for c in range(body.shape[0]):
+    for c in prange(body.shape[0]):
         a = body[c]
         n = normal[c]
         r = lever[c]
@@ -134,6 +133,23 @@ def row_normal_velocity(body, partner, normal, lever, partner_lever, u, out):
             s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1]) + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
                   + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
         out[c] = s
+
+
+@njit(cache=True)
+def touched_fibres(body, partner, fibre, n_fibres):
+    """(n_fibres,) bool: the fibres with a body or partner (≥ 0) among the rows (fibre: (S,) fibre of every
+    segment); one pass instead of NumPy's gathers and scatters over the millions of rows."""
+    out = np.zeros(n_fibres, np.bool_)
+    for c in range(body.shape[0]):
+        out[fibre[body[c]]] = True
+        b = partner[c]
+        if b >= 0:
+            out[fibre[b]] = True
+    return out
+
+
+row_normal_velocity = njit(cache=True)(_row_normal_velocity_impl)
+row_normal_velocity_parallel = njit(cache=True, parallel=True)(_row_normal_velocity_impl)
 
 
 @njit(cache=True)
@@ -200,14 +216,13 @@ def joint_duplicate_contacts(pairs, params, half_length, radius, fibre, is_root,
                 drop[i] = True
 
 
-@njit(cache=True)
-def warm_start_rows(keys, primary, warm_keys, warm_lam, warm_fr, fraction, lam, fr):
+def _warm_start_rows_impl(keys, primary, warm_keys, warm_lam, warm_fr, fraction, lam, fr):
     """Warm-start impulses per row (:meth:`headsim.solvers.chains.ChainSolver._warm_start_impulses`):
     lam (n,) = fraction × the previous step's normal impulse (N s) of the row's contact (same key) and
     fr (n, 2) likewise for the friction impulse, 0 for new contacts and non-primary rows. warm_keys
     increasing."""
     nw = warm_keys.shape[0]
-    for i in range(keys.shape[0]):
+    for i in prange(keys.shape[0]):
         lam[i] = 0.0
         fr[i, 0] = 0.0
         fr[i, 1] = 0.0
@@ -220,13 +235,12 @@ def warm_start_rows(keys, primary, warm_keys, warm_lam, warm_fr, fraction, lam, 
             fr[i, 1] = fraction * warm_fr[j, 1]
 
 
-@njit(cache=True)
-def kernel_row_inputs(order, gaps, beta, dt, warm_lam, warm_fr, target, lam, fr):
+def _kernel_row_inputs_impl(order, gaps, beta, dt, warm_lam, warm_fr, target, lam, fr):
     """Inputs of the coupled kernel in its row order ``order``: target[q] = −g/Δt for a gap g > 0 (a
     speculative contact) and −β g/(½Δt) for a penetration (m/s), and the starting impulses lam[q], fr[q]
     of row order[q] (warm_lam (n,) N s, warm_fr (n, 2); empty: zeros)."""
     warm = warm_lam.shape[0] > 0
-    for q in range(order.shape[0]):
+    for q in prange(order.shape[0]):
         r = order[q]
         g = gaps[r]
         target[q] = -g / dt if g > 0 else -beta * g / (0.5 * dt)
@@ -240,18 +254,27 @@ def kernel_row_inputs(order, gaps, beta, dt, warm_lam, warm_fr, target, lam, fr)
             fr[q, 1] = 0.0
 
 
-@njit(cache=True)
-def scatter_kernel_impulses(order, lam_k, fr_k, lam, fr):
-    """lam (n,), fr (n, 2) in row order: 0, then the kernel's impulses lam_k, fr_k (order) at rows order."""
-    for i in range(lam.shape[0]):
+def _scatter_kernel_impulses_impl(order, lam_k, fr_k, lam, fr):
+    """lam (n,), fr (n, 2) in row order: 0, then the kernel's impulses lam_k, fr_k (order) at rows order
+    (order: distinct rows, so the parallel version writes every row once)."""
+    for i in prange(lam.shape[0]):
         lam[i] = 0.0
         fr[i, 0] = 0.0
         fr[i, 1] = 0.0
-    for q in range(order.shape[0]):
+    for q in prange(order.shape[0]):
         r = order[q]
         lam[r] = lam_k[q]
         fr[r, 0] = fr_k[q, 0]
         fr[r, 1] = fr_k[q, 1]
+
+
+# per-row passes: serial, and ``prange`` versions for the ≈ 2–7 M rows and candidates of the reference scene
+warm_start_rows = njit(cache=True)(_warm_start_rows_impl)
+warm_start_rows_parallel = njit(cache=True, parallel=True)(_warm_start_rows_impl)
+kernel_row_inputs = njit(cache=True)(_kernel_row_inputs_impl)
+kernel_row_inputs_parallel = njit(cache=True, parallel=True)(_kernel_row_inputs_impl)
+scatter_kernel_impulses = njit(cache=True)(_scatter_kernel_impulses_impl)
+scatter_kernel_impulses_parallel = njit(cache=True, parallel=True)(_scatter_kernel_impulses_impl)
 
 
 
