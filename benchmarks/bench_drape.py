@@ -141,10 +141,12 @@ Issue 10, twelfth session (one process per line, machine otherwise idle, same co
 
 Later in the reference sequence the candidates grow with the fall speed: the derived default geometry
 (``build_drape_scene("sphere-helical")``, 355 × 100) run from t = 0 takes 1.0 s per step at t = 10 ms, 2.6 s at
-30 ms, 6–7 s at 60 ms (0.6 m/s free fall: 7.4 M candidates, 35 k rows, 4.9–5.7 k contacts). From the same saved
-state at t = 60 ms, 3 steps each (``/tmp`` script, same session): the code before this session (commit d28e51d)
-9.28 s per step (175 k rows), Nesterov + candidate rows 8.30 s, + the per-row passes 6.51 s, + the kernel's
-in-place impulses 5.99 s (same contacts and penetrations in the last three). There the candidates of the
+30 ms, 6–7 s at 60 ms (0.6 m/s free fall: 7.4 M candidates, 35 k rows, 4.9–5.7 k contacts); reproducible as
+``--settle 58 --steps 3 --coupled-only`` (derived geometry): 5.97 s per step (detection 2.84 s, contacts 2.84 s),
+7.5 M candidates, 5,291 contacts. From one saved state at t = 60 ms, 3 steps each in one session: the source
+tree before this session (commit d28e51d) 9.28 s per step (175 k rows), Nesterov + candidate rows 8.30 s,
++ the per-row passes 6.51 s, + the kernel's in-place impulses 5.99 s (same contacts and penetrations in the
+last three). There the candidates of the
 absolute-speed band cost more than the solves: the fused detection pass 1.3 s, the gather of 7.6 M rows
 0.58 s, the kernel's O(candidates) work in each of the 3 solves. The candidate band is the lever left: it
 grows with |u|Δt of each segment although a falling strand's neighbours move together; bounding the solve's
