@@ -230,9 +230,10 @@ def test_table_8_1_no_friction_gives_the_smallest_box(helical_runs):
     Reduced scene (see ``helical_runs``); the ordering was checked on larger scenes once
     (``benchmarks/bench_drape_volume.py``, derived geometry, straight rest shape): none/aniso, none/iso =
     0.58, 0.68 at 19 × 30 and 0.53, 0.72 at 61 × 50 (before the contact solve's joint rows became J u = 0,
-    ``joint_gap_fraction`` = 0; not re-measured since); here 0.64, 0.60 with issue 10's ``half_step_projection`` and
-    ``separating_candidates`` (0.62, 0.56 before them, 0.57, 0.53 after that change,
-    0.49, 0.56 before it). The agreement is in the ordering
+    ``joint_gap_fraction`` = 0; not re-measured since); here 0.59, 0.53 with the Nesterov-accelerated 30-sweep
+    contact solve (0.49, 0.49 with the former plain 60 sweeps; measured at 0.7 s in issue 10's twelfth session),
+    0.64, 0.60 with issue 10's ``half_step_projection`` and ``separating_candidates`` (0.62, 0.56 before them,
+    0.57, 0.53 after that change, 0.49, 0.56 before it). The agreement is in the ordering
     only, not in the mechanism or the size: our boxes are 2–5 times the seed's; the frictionless strand
     slides over the sphere's rim and hangs down its side (box ≈ 12 × 24 × 7 cm, 24 cm tall against the
     seed's 8.24 cm), narrower than the frictional strands spread over the cap."""
@@ -249,7 +250,7 @@ def test_table_8_1_isotropic_and_anisotropic_boxes_agree(helical_runs):
     strand has come to rest, and the ratio is the phase of a transient. Measured (issue 10, 7 × 30, volumes
     every 0.1 s from 0.4 to 1.0 s, iso/aniso): plain Gauss–Seidel at 60 sweeps (the former defaults) 0.50,
     0.61, 0.77, 1.00 (0.7 s), 1.64, 3.22, 5.16; Nesterov-accelerated at 60 sweeps 0.47, 0.53, 0.65, 0.88,
-    1.40, 2.36, 2.28; the defaults (Nesterov, 30 sweeps) 1.072 at 0.7 s. The former pass at 0.998 was the
+    1.40, 2.36, 2.28; the defaults (Nesterov, 30 sweeps) 0.47, 0.59, 0.75, 1.115 (0.7 s), 1.79, 2.18, 2.29. The former pass at 0.998 was the
     plain solver's curve crossing 1 near 0.7 s; other solver variants gave 0.88–1.11 there (1.070 with a
     sweep budget of 1,000,000, 0.981 / 0.948 / 1.074 with 2 / 3 / 4 contact_domains, 0.85 at 19 × 30 and
     0.74 at 61 × 50). Strict: a change that makes it pass is to be measured (is the agreement then
