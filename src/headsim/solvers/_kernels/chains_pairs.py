@@ -439,3 +439,96 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
 
 detect_rows = njit(cache=True)(_detect_rows_impl)
 detect_rows_parallel = njit(cache=True, parallel=True)(_detect_rows_impl)
+
+
+@njit(cache=True)
+def relative_speed_allowance(x, v, w, half, mass, cell, out_dev, out_spread):
+    """Per segment, the two terms of a bound of its points' velocity relative to a smooth reference field U
+    (m/s; ``ChainOptions.candidate_band = "relative"``). U: the mass-weighted segment velocities v (S, 3) at
+    the centres x (S, 3) gathered on a grid of ``cell`` (m) with trilinear weights, and interpolated back from
+    the nodes that received mass (weights renormalised, so U(x) is a convex combination of those nodes'
+    values). out_dev[s] = |v_s − U(x_s)| + h_s|ω_s| (every point of segment s moves at most this fast relative
+    to U(x_s)); out_spread[s] = the largest |V_n − U(x_s)| over the nodes with mass of the 3 × 3 × 3 cells
+    around x_s's cell. A segment b whose centre lies within one cell of x_s interpolates U(x_b) from those
+    nodes, so |U(x_b) − U(x_s)| ≤ out_spread[s], and any point of b moves relative to any point of s at most
+    dev_s + dev_b + min(spread_s, spread_b) (triangle inequality)."""
+    S = x.shape[0]
+    lo = np.empty(3)
+    hi = np.empty(3)
+    for q in range(3):
+        lo[q] = x[0, q]
+        hi[q] = x[0, q]
+    for s in range(S):
+        for q in range(3):
+            lo[q] = min(lo[q], x[s, q])
+            hi[q] = max(hi[q], x[s, q])
+    dims = np.empty(3, np.int64)
+    for q in range(3):
+        lo[q] -= 2.0 * cell
+        dims[q] = int((hi[q] - lo[q]) / cell) + 4
+    M = np.zeros((dims[0], dims[1], dims[2]))
+    MV = np.zeros((dims[0], dims[1], dims[2], 3))
+    base = np.empty((S, 3), np.int64)
+    frac = np.empty((S, 3))
+    for s in range(S):
+        for q in range(3):
+            t = (x[s, q] - lo[q]) / cell
+            i = int(np.floor(t))
+            base[s, q] = i
+            frac[s, q] = t - i
+        i, j, k = base[s, 0], base[s, 1], base[s, 2]
+        for di in range(2):
+            wx = frac[s, 0] if di else 1.0 - frac[s, 0]
+            for dj in range(2):
+                wy = frac[s, 1] if dj else 1.0 - frac[s, 1]
+                for dk in range(2):
+                    wz = frac[s, 2] if dk else 1.0 - frac[s, 2]
+                    m = wx * wy * wz * mass[s]
+                    M[i + di, j + dj, k + dk] += m
+                    for q in range(3):
+                        MV[i + di, j + dj, k + dk, q] += m * v[s, q]
+    for i in range(dims[0]):
+        for j in range(dims[1]):
+            for k in range(dims[2]):
+                if M[i, j, k] > 0.0:
+                    for q in range(3):
+                        MV[i, j, k, q] /= M[i, j, k]
+    for s in range(S):
+        i, j, k = base[s, 0], base[s, 1], base[s, 2]
+        U0 = 0.0
+        U1 = 0.0
+        U2 = 0.0
+        wsum = 0.0
+        for di in range(2):
+            wx = frac[s, 0] if di else 1.0 - frac[s, 0]
+            for dj in range(2):
+                wy = frac[s, 1] if dj else 1.0 - frac[s, 1]
+                for dk in range(2):
+                    if M[i + di, j + dj, k + dk] <= 0.0:
+                        continue
+                    wz = frac[s, 2] if dk else 1.0 - frac[s, 2]
+                    ww = wx * wy * wz
+                    wsum += ww
+                    U0 += ww * MV[i + di, j + dj, k + dk, 0]
+                    U1 += ww * MV[i + di, j + dj, k + dk, 1]
+                    U2 += ww * MV[i + di, j + dj, k + dk, 2]
+        if wsum > 0.0:
+            U0 /= wsum
+            U1 /= wsum
+            U2 /= wsum
+        d0 = v[s, 0] - U0
+        d1 = v[s, 1] - U1
+        d2 = v[s, 2] - U2
+        out_dev[s] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) + half[s] * np.sqrt(
+            w[s, 0] * w[s, 0] + w[s, 1] * w[s, 1] + w[s, 2] * w[s, 2])
+        sp = 0.0
+        for ii in range(i - 1, i + 3):
+            for jj in range(j - 1, j + 3):
+                for kk in range(k - 1, k + 3):
+                    if M[ii, jj, kk] <= 0.0:
+                        continue
+                    e0 = MV[ii, jj, kk, 0] - U0
+                    e1 = MV[ii, jj, kk, 1] - U1
+                    e2 = MV[ii, jj, kk, 2] - U2
+                    sp = max(sp, e0 * e0 + e1 * e1 + e2 * e2)
+        out_spread[s] = np.sqrt(sp)
