@@ -191,6 +191,20 @@ def test_no_tunnelling_of_a_dropped_fibre_at_1ms():
     assert abs(state.velocity[1, 1]) < 1e-3
 
 
+def _crossed_pair_falling_onto_a_plane(height):
+    """Two crossed 3 mm fibres (70 µm) falling together at 0.5 m/s, 0.2 mm apart, the lower one ``height`` (m)
+    above the plane y = 0 (the obstacle). Returns model, state, obstacles."""
+    L = 3e-3
+    y0 = R_FIBRE + height
+    low = np.array([[-L / 2, y0, 0.0], [L / 2, y0, 0.0]])
+    high = np.array([[0.0, y0 + 2 * R_FIBRE + 0.2e-3, -L / 2], [0.0, y0 + 2 * R_FIBRE + 0.2e-3, L / 2]])
+    model, state = chain_model_from_polylines(np.concatenate([low, high]), [0, 2, 4], radius=R_FIBRE, anchored=False)
+    v = np.zeros((2, 3))
+    v[:, 1] = -0.5
+    state = ChainState(state.position, state.rotation, v, state.angular_velocity)
+    return model, state, [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+
+
 def test_pair_falling_together_gets_its_row_when_the_lower_fibre_lands():
     """Two crossed 70 µm fibres falling side by side at 0.5 m/s, 0.2 mm apart, onto the plane: at u⁻ their
     relative speed is zero, so the pair is only a candidate (its gap exceeds the band), not a row. When
@@ -199,16 +213,8 @@ def test_pair_falling_together_gets_its_row_when_the_lower_fibre_lands():
     the diameter and must come to rest on top, and the pair must have been added during a solve. (With
     the candidates left out of the solve, measured: the centres came within 8 µm of each other, i.e.
     the upper fibre sank 62 µm into the lower one before the next detection pushed it out.)"""
-    L = 3e-3
-    y0 = R_FIBRE + 0.4e-3
-    low = np.array([[-L / 2, y0, 0.0], [L / 2, y0, 0.0]])
-    high = np.array([[0.0, y0 + 2 * R_FIBRE + 0.2e-3, -L / 2], [0.0, y0 + 2 * R_FIBRE + 0.2e-3, L / 2]])
-    model, state = chain_model_from_polylines(np.concatenate([low, high]), [0, 2, 4], radius=R_FIBRE, anchored=False)
-    v = np.zeros((2, 3))
-    v[:, 1] = -0.5
-    state = ChainState(state.position, state.rotation, v, state.angular_velocity)
+    model, state, obstacles = _crossed_pair_falling_onto_a_plane(0.4e-3)
     solver = ChainSolver(ChainOptions(friction=FrictionLaw.isotropic(0.47)))
-    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
     promoted = candidates = 0
     closest = np.inf
     for _ in range(60):
@@ -264,16 +270,8 @@ def test_relative_candidate_band_keeps_the_pair_falling_together_apart(forced_al
     rest on top. With ``forced_allowance`` the velocity-change allowance δ̂ is set to 0.1 mm/s before every
     step (a predictor that misses the landing, which the obstacle rows' prior otherwise covers): the check
     after the solves must catch the landing's ≈ 0.5 m/s change and redo the step."""
-    L = 3e-3
-    y0 = R_FIBRE + 2.4e-3
-    low = np.array([[-L / 2, y0, 0.0], [L / 2, y0, 0.0]])
-    high = np.array([[0.0, y0 + 2 * R_FIBRE + 0.2e-3, -L / 2], [0.0, y0 + 2 * R_FIBRE + 0.2e-3, L / 2]])
-    model, state = chain_model_from_polylines(np.concatenate([low, high]), [0, 2, 4], radius=R_FIBRE, anchored=False)
-    v = np.zeros((2, 3))
-    v[:, 1] = -0.5
-    state = ChainState(state.position, state.rotation, v, state.angular_velocity)
+    model, state, obstacles = _crossed_pair_falling_onto_a_plane(2.4e-3)
     solver = ChainSolver(ChainOptions(friction=FrictionLaw.isotropic(0.47), candidate_band="relative"))
-    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
     modes, redos = [], 0
     closest = np.inf
     for _ in range(60):
