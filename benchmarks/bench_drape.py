@@ -151,13 +151,16 @@ absolute-speed band cost more than the solves: the fused detection pass 1.3 s, t
 0.58 s, the kernel's O(candidates) work in each of the 3 solves. The candidate band is the lever left: it
 grows with |u|Δt of each segment although a falling strand's neighbours move together.
 
-``ChainOptions.candidate_band = "relative"`` (the default since): the candidate band from each segment's speed
-relative to a smooth reference field (velocities gathered on a grid) plus an allowance for its velocity change
-in the solves, checked after them (a step whose change exceeds it is redone). ``--settle 58 --steps 3
---coupled-only`` (derived geometry, t = 60 ms, the whole 60 steps run in the mode): 1.47 s per step (detection
-0.36 s, contacts 0.87 s), 1.26 M candidates, against 5.97 s and 7.5 M with ``--set "candidate_band='absolute'"``;
-the same 5,291 contacts, max penetration 7.739e-07 m, kinetic energy 1.0273e-04 J and joint gap 4.941e-07 m. On
-the ringlet start every step keeps the absolute band (2.74 s per step, bitwise the same states).
+``ChainOptions.candidate_band = "relative"`` (opt-in): the candidate band from each segment's speed relative to a
+smooth reference field (velocities gathered on a grid) plus an allowance for its velocity change in the solves,
+checked after them (a step whose change exceeds it is redone with the absolute band). ``--settle 58 --steps 3
+--coupled-only --set "candidate_band='relative'"`` (derived geometry, t = 60 ms, the whole 60 steps run in the
+mode): 1.47 s per step (detection 0.36 s, contacts 0.87 s), 1.26 M candidates, against 5.97 s and 7.5 M with the
+default absolute band; the same 5,291 contacts, max penetration 7.739e-07 m, kinetic energy 1.0273e-04 J and joint
+gap 4.941e-07 m. On the ringlet start every step keeps the absolute band (2.74 s per step, bitwise the same
+states). Through the landing (from a saved t = 60 ms state, 30 steps per mode, 2 shared cores; the same trajectory
+to the printed digits) the relative mode redid 13 of the 15 steps from 80 to 90 ms and took 393 s against 262 s:
+it stays opt-in until its allowance foresees segments stopped by other fibres.
 """
 
 from __future__ import annotations

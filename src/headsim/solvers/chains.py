@@ -767,22 +767,26 @@ class ChainOptions:
         sweeps 0.308 off against 0.344 for the former 60 plain ones). ``"none"``: the plain Gauss–Seidel
         (with ``qp_iterations=60`` the former iterates, bitwise).
     candidate_band : coupled mode, how far apart a fibre pair may be and still be a candidate (the pairs the
-        solve may turn into rows). ``"absolute"``: within 0.75 (s_a + s_b) Δt of the row band, s the segments'
-        own speeds |v| + h|ω| (the former band; it grows with the fall speed although neighbouring fibres move
-        together). ``"relative"`` (default, issue 10): s_a = (dev_a + ½ spread_a + 1.5 δ̂_a)/0.75 with
+        solve may turn into rows). ``"absolute"`` (default): within 0.75 (s_a + s_b) Δt of the row band, s the
+        segments' own speeds |v| + h|ω| (it grows with the fall speed although neighbouring fibres move
+        together). ``"relative"`` (opt-in, issue 10): s_a = (dev_a + ½ spread_a + 1.5 δ̂_a)/0.75 with
         dev and spread the bound of the segment's speed relative to a smooth reference velocity field
         (:func:`headsim.solvers._kernels.chains_pairs.relative_speed_allowance`) and δ̂_a an allowance for the
         velocity change the step's solves may give it (1.5 × the change measured in the previous step, at
         least |g|Δt; the segment's own speed where it has an obstacle row). After the step's solves every
         segment's measured change δ (against the detection's u⁻) is checked against δ̂: where it is larger the
-        step is redone with δ̂ raised to 1.25 δ (at most twice; the third attempt uses the absolute band), so
-        every pair that the final velocities close within the step was a candidate (the bound, not a
-        heuristic). The absolute band is used for a step whose relative band would be wider. Measured
+        step is redone with the absolute band (and the next step's δ̂ raised to 1.25 δ), so every pair that the
+        final velocities close within a relative-band step was a candidate (the bound, not a heuristic). The absolute band is used for a step whose relative band would be wider. Measured
         (``benchmarks/bench_drape.py``, 355 × 100): derived geometry at t = 60 ms (``--settle 58 --steps 3``,
         0.6 m/s fall) 7.5 M → 1.26 M candidates, 5.97 → 1.47 s per step, the same contacts, penetration,
         kinetic energy and joint gap to the printed digits after 60 steps in each mode; the ringlet start
         (``--geometry former``) keeps the absolute band in every step (its velocities are incoherent across
-        the grid cells), bitwise the former states.
+        the grid cells), bitwise the former states. Not the default because of the landing: from the saved
+        t = 60 ms state, 30 steps in each mode (the same trajectory to the printed digits in both; 2 shared
+        cores): 60–80 ms 3.2 s against 6–7 s per step, but 80–90 ms, where the strand lands on the sphere and on
+        itself, 13 of 15 steps were redone (segments stopped by fibres the previous step's allowance did not
+        foresee), 24–30 s against 11.5–15 s; 393 s against 262 s in all. A better allowance (e.g. from the
+        closing speeds of each segment's candidate pairs at the end of the previous step) is the next step.
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -820,7 +824,7 @@ class ChainOptions:
     separating_candidates: bool = True
     contact_domains: int = 1
     contact_acceleration: str = "nesterov"
-    candidate_band: str = "relative"
+    candidate_band: str = "absolute"
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -1906,7 +1910,7 @@ class ChainSolver:
             if self._pair_speed is not None and (change > dhat_used).any():
                 # a velocity change beyond its allowance: a pair outside the candidate band may close in this step
                 self._dhat = np.maximum(dhat_used, 1.25 * change)
-                return self._step(model, state, dt, obstacles, redo + 1, force_absolute=redo + 1 >= 2)
+                return self._step(model, state, dt, obstacles, redo + 1, force_absolute=True)
             # the next step's allowance: 1.5 × this step's change, at least one step of gravity, and a segment
             # with an obstacle row may be stopped by it
             self._dhat = np.maximum(1.5 * change, float(np.linalg.norm(o.gravity)) * dt)
