@@ -134,6 +134,9 @@ WARM_START_FRACTION = 0.5
 # would close them within the step. 1 is the speculative condition itself at u⁻; on the 355 × 100 helical
 # scene at t = 32 ms it keeps 14 % of the 753 k pairs, all but 0.1 % of the rows that end with an impulse.
 CLOSING_MARGIN_FACTOR = 1.0
+# candidate_band="relative": largest reference-velocity grid (cells; 8 floats each, 320 MB); fibres spread wider than
+# this at the cell size the band needs keep the absolute band for the step
+MAX_REFERENCE_GRID_CELLS = 10_000_000
 
 
 # ------------------------------------------------------------------------------------------------
@@ -1704,14 +1707,18 @@ class ChainSolver:
         S = model.n_segments
         dhat = self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed
         h, r = model.half_length, model.radius
+        x = np.ascontiguousarray(x_mid)
         v = np.ascontiguousarray(u_minus[:, :3])
         w = np.ascontiguousarray(u_minus[:, 3:])
+        hw, mw = self._writable(h), self._writable(model.mass)
+        extent = x.max(axis=0) - x.min(axis=0)
         base = 2.0 * h.max() + 2.0 * r.max() * (1.0 + o.contact_band) + o.speculative_speed * dt
         cell = base + 2.0 * dt * float(self._speed.max())
         dev, spread = np.empty(S), np.empty(S)
         for _ in range(4):
-            KP.relative_speed_allowance(np.ascontiguousarray(x_mid), v, w, self._writable(h), self._writable(model.mass),
-                                        float(cell), dev, spread)
+            if np.prod(extent / cell + 6.0) > MAX_REFERENCE_GRID_CELLS:  # fibres spread far apart: no grid
+                return None
+            KP.relative_speed_allowance(x, v, w, hw, mw, float(cell), dev, spread)
             a = (dev + 0.5 * spread + 1.5 * dhat) / 0.75
             need = base + 1.5 * dt * float(a.max())
             if need <= cell:
@@ -1811,9 +1818,12 @@ class ChainSolver:
                 if (o.candidate_band == "relative" and o.contact_coupling == "coupled" and S > 1
                         and not force_absolute):
                     self._pair_speed = self._relative_pair_speed(model, x_mid, u_minus, dt)
-                dhat_used = self._pair_speed is not None and (
-                    self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed)
-                u_det = np.array(u_minus)  # the solves' velocity changes are measured against this u⁻
+                # candidate_band="relative": the solves' velocity changes, measured against this u⁻, for the check
+                # against the allowance δ̂ this band was built with and for the next step's δ̂
+                track = o.candidate_band == "relative" and o.contact_coupling == "coupled"
+                if self._pair_speed is not None:
+                    dhat_used = self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed
+                u_det = np.array(u_minus) if track else None
                 change = np.zeros(S)
                 rows = self._detect(model, x_mid, R_mid, dt, obstacles, u_minus)
                 if o.contact_coupling == "coupled":  # the rows' normal relative velocities at this u⁻: the
@@ -1866,7 +1876,8 @@ class ChainSolver:
             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                    sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring, spring_step=spring_step,
                                    joints_last=endvel, budget=endvel)
-            change = np.maximum(change, _speed_change(u_vel, u_det, model.half_length))
+            if track:
+                change = np.maximum(change, _speed_change(u_vel, u_det, model.half_length))
             if endvel:
                 # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met its
                 # stopping rule with a positive bound is solved on, from its own impulses, to a 10× tighter rule
@@ -1897,7 +1908,8 @@ class ChainSolver:
                                        warm, pass_key=it, joints_last=o.split_recovery and o.recovery_keeps_joints,
                                        u_spring=u_spring, spring_step=spring_step, budget=endvel)
                 promoted += self._promoted
-                change = np.maximum(change, _speed_change(u_pos, u_det, model.half_length))
+                if track:
+                    change = np.maximum(change, _speed_change(u_pos, u_det, model.half_length))
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
@@ -1906,7 +1918,7 @@ class ChainSolver:
                 dth_extra = 0.5 * dt * dc[:, 3:]
         self._pass_setup = None  # the kernel set-up is per pass (hundreds of MB on the reference scene)
         band_mode = "absolute" if self._pair_speed is None else "relative"
-        if rows is not None and o.contact_coupling == "coupled":
+        if rows is not None and track:
             if self._pair_speed is not None and (change > dhat_used).any():
                 # a velocity change beyond its allowance: a pair outside the candidate band may close in this step
                 self._dhat = np.maximum(dhat_used, 1.25 * change)

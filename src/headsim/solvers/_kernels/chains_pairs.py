@@ -277,7 +277,6 @@ scatter_kernel_impulses = njit(cache=True)(_scatter_kernel_impulses_impl)
 scatter_kernel_impulses_parallel = njit(cache=True, parallel=True)(_scatter_kernel_impulses_impl)
 
 
-
 def _gather_rows_impl(order, body, partner, normal, lever, partner_lever, ob, op, on, ol, opl):
     """ob[q] = body[order[q]] etc.: the geometry of the rows in the coupled kernel's order, the five arrays
     in one pass (NumPy's fancy indexing of the ≈ 2 M rows of the reference scene took 0.42 s per step for
