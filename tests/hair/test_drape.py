@@ -206,11 +206,11 @@ KE_FRACTION = 1e-2
 @pytest.fixture(scope="module")
 def helical_runs():
     """The reference scene (§8.6.2, the derived default geometry, rest shape straight) reduced to 7 fibres
-    × 30 segments (1 cm; the seed: 355 × 100), Δt = 1 ms, 30 cm fibres, recorded every 10 ms: aniso and
-    none to the seed's 0.7 s, iso to 1.5 s (for the stable volume; its 0.7 s frame for Table 8.1).
-    Returns {mode: (result, volumes (frames,) m³)}."""
+    × 30 segments (1 cm; the seed: 355 × 100), Δt = 1 ms, 30 cm fibres, recorded every 10 ms: none to the
+    seed's 0.7 s, aniso to 0.75 s (the seed's "ca. 0,7 Sekunden" ± 0.05 s), iso to 1.5 s (for the stable
+    volume; its frames at 0.65–0.75 s for Table 8.1). Returns {mode: (result, volumes (frames,) m³)}."""
     runs = {}
-    for mode, duration in (("aniso", 0.7), ("iso", 1.5), ("none", 0.7)):
+    for mode, duration in (("aniso", 0.75), ("iso", 1.5), ("none", 0.7)):
         sc = build_drape_scene("sphere-helical", mode, n_fibres=7, segments=30, duration=duration)
         res = run_drape(sc, record_every=10)
         assert np.isfinite(res.polylines).all()
@@ -242,21 +242,25 @@ def test_table_8_1_no_friction_gives_the_smallest_box(helical_runs):
     assert n / i < GROUP_THRESHOLD
 
 
-@pytest.mark.xfail(strict=True, reason="Table 8.1's iso ≈ aniso is not reproduced at this scale: at 0.7 s the "
-                   "ratio is the phase of a transient (see the docstring)")
+@pytest.mark.xfail(strict=True, reason="Table 8.1's iso ≈ aniso is not reproduced at this scale: around 0.7 s the "
+                   "ratio is a transient crossing 1 (see the docstring)")
 def test_table_8_1_isotropic_and_anisotropic_boxes_agree(helical_runs):
     """Table 8.1: the isotropic (μ = 0.47) and anisotropic (wool/wool 0.13 / 0.61 / 0.21) boxes agree
-    within 5 % (seed: 0.99). Not reproduced on this reduced scene (strict xfail): at 0.7 s neither frictional
-    strand has come to rest, and the ratio is the phase of a transient. Measured (issue 10, 7 × 30, volumes
-    every 0.1 s from 0.4 to 1.0 s, iso/aniso): plain Gauss–Seidel at 60 sweeps (the former defaults) 0.50,
-    0.61, 0.77, 1.00 (0.7 s), 1.64, 3.22, 5.16; Nesterov-accelerated at 60 sweeps 0.47, 0.53, 0.65, 0.88,
-    1.40, 2.36, 2.28; the defaults (Nesterov, 30 sweeps) 0.47, 0.59, 0.75, 1.115 (0.7 s), 1.79, 2.18, 2.29. The former pass at 0.998 was the
-    plain solver's curve crossing 1 near 0.7 s; other solver variants gave 0.88–1.11 there (1.070 with a
-    sweep budget of 1,000,000, 0.981 / 0.948 / 1.074 with 2 / 3 / 4 contact_domains, 0.85 at 19 × 30 and
-    0.74 at 61 × 50). Strict: a change that makes it pass is to be measured (is the agreement then
-    robust over time and scale?), not taken as a reproduction."""
-    i, a = (_volume_at(helical_runs[m], 0.7) for m in ("iso", "aniso"))
-    assert abs(i / a - 1) < SAME_BAND
+    within 5 % (seed: 0.99) "after about 0.7 s" (ca. 0,7 Sekunden): asserted at 0.65, 0.70 and 0.75 s, so that a
+    transient crossing 1 near 0.7 s does not count as agreement. Not reproduced on this reduced scene (strict
+    xfail): neither frictional strand has come to rest, and the ratio sweeps through 1. Measured (issue 10,
+    7 × 30, iso/aniso every 0.1 s from 0.4 to 1.0 s): plain Gauss–Seidel at 60 sweeps (the former defaults)
+    0.50, 0.61, 0.77, 1.00 (0.7 s), 1.64, 3.22, 5.16; Nesterov-accelerated at 60 sweeps 0.47, 0.53, 0.65,
+    0.88, 1.40, 2.36, 2.28; Nesterov at 30 sweeps 0.47, 0.59, 0.75, 1.115 (0.7 s), 1.79, 2.18, 2.29; with the
+    candidate reserve (the defaults since issue 10's thirteenth session) 0.48, 0.64, 0.81, 0.981 (0.7 s), 1.26,
+    1.88, 2.66, and 0.868 / 0.981 / 1.072 at 0.65 / 0.70 / 0.75 s. At 0.7 s alone the check passed by chance
+    with the former defaults (0.998) and with the candidate reserve; other solver variants gave 0.88–1.11
+    there (1.070 with a sweep budget of 1,000,000, 0.981 / 0.948 / 1.074 with 2 / 3 / 4 contact_domains,
+    0.85 at 19 × 30 and 0.74 at 61 × 50). Strict: a change that makes it pass is to be measured (is the
+    agreement then robust over time and scale?), not taken as a reproduction."""
+    for t in (0.65, 0.70, 0.75):
+        i, a = (_volume_at(helical_runs[m], t) for m in ("iso", "aniso"))
+        assert abs(i / a - 1) < SAME_BAND, (t, i / a)
 
 
 def test_reference_scene_settles_to_a_stable_volume_with_isotropic_friction(helical_runs):

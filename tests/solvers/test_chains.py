@@ -228,6 +228,98 @@ def test_pair_falling_together_gets_its_row_when_the_lower_fibre_lands():
     assert candidates >= 1 and promoted >= 1
 
 
+def _reserve_scene(seed=11, n=300):
+    """n free 3 mm segments (70 µm) at random in a 5 mm box with random twists u_ref (|v| ≈ 0.3 m/s, ω ≈
+    100 rad/s) and first half steps dq0, detected with a zero allowance (every candidate with a positive
+    slack goes to the reserve). Returns solver, model, rows, u_ref, dq0, rng."""
+    from headsim.solvers._kernels import chains_pairs as KP
+
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(0.0, 5e-3, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    nodes = np.stack([c - 1.5e-3 * d, c + 1.5e-3 * d], 1).reshape(-1, 3)
+    model, state = chain_model_from_polylines(nodes, np.arange(0, 2 * n + 1, 2), radius=R_FIBRE, anchored=False)
+    dt = 1e-3
+    u_ref = np.concatenate([rng.normal(0, 0.3, (n, 3)), rng.normal(0, 100.0, (n, 3))], 1)
+    dq0 = 0.5 * dt * (u_ref + np.concatenate([rng.normal(0, 0.05, (n, 3)), rng.normal(0, 20.0, (n, 3))], 1))
+    solver = ChainSolver(ChainOptions())
+    h = model.half_length
+    solver._speed = np.linalg.norm(u_ref[:, :3], axis=1) + h * np.linalg.norm(u_ref[:, 3:], axis=1)
+    solver._allow = np.zeros(n)
+    rows = solver._detect(model, state.position, state.rotation, dt, (), u_ref, dq0)
+    ref_vn = np.empty(len(rows.body))
+    KP.row_normal_velocity(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, u_ref, ref_vn)
+    solver._screen_ref = (rows, ref_vn, u_ref)
+    return solver, model, rows, u_ref, dq0, rng
+
+
+def test_candidate_reserve_finds_every_pair_a_solve_would_close():
+    """ChainOptions.candidate_reserve: a reserve pair (kept out of the coupled solve) must come back whenever
+    a solve's twists u would make the kernel promote it, i.e. n·(u_A − u_B) < target of its gap in that pass
+    (velocity solve: −g/Δt; push-out: −β g/(½Δt) for g ≤ 0; with end_velocity_positions g = min(g_mid, ½ g⁰)
+    etc.). On 300 random segments (≈ 3 k reserve pairs), for twist changes of 2 %, 30 % and 100 % of u_ref
+    and a moved mid state: the exact check returns exactly the violated pairs, and the bound that screens
+    them (|Δv| + ρ|Δω| + c P/Δt per body) flags all of them — and, for the small change, few others."""
+    from headsim.solvers._kernels import chains_pairs as KP
+
+    dt, beta = 1e-3, 0.1
+    violated_total = 0
+    for scale in (0.02, 0.3, 1.0):
+        found = {}
+        for rounds in (0, 3):  # 0: exact test of the suspects; 3: every suspect of the bound
+            solver, model, rows, u_ref, dq0, rng = _reserve_scene()
+            res = solver._reserve
+            assert len(res.idx) > 2000
+            n_res = len(res.idx)
+            rng = np.random.default_rng(int(scale * 100))
+            u = u_ref + scale * np.concatenate([rng.normal(0, 0.3, (len(u_ref), 3)),
+                                                rng.normal(0, 100.0, (len(u_ref), 3))], 1)
+            dq = 0.2 * scale * dt * np.concatenate([rng.normal(0, 0.05, (len(u_ref), 3)),
+                                                   rng.normal(0, 20.0, (len(u_ref), 3))], 1)
+            cand = solver._reserve_rows(res, res.idx.copy())
+            vn0 = np.empty(len(cand.body))
+            KP.row_normal_velocity(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, vn0)
+            gv, gp, _ = solver._pass_gaps(cand, cand.gap - vn0, dq, True, model, KP.row_normal_velocity)
+            vn = np.empty(len(cand.body))
+            KP.row_normal_velocity(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, u, vn)
+            hit = (vn < np.where(gv > 0, -gv / dt, 0.0)) | (vn < np.where(gp > 0, -gp / dt, -beta * gp / (0.5 * dt)))
+            out = solver._reserve_violations(model, rows, [(u, 0.0), (u, beta)], dq0, dq, True, dt,
+                                             KP.row_normal_velocity, rounds)
+            found[rounds] = set() if out is None else set(out[1].key.tolist())
+            assert len(solver._reserve.idx) == n_res - len(found[rounds])
+        exact = set(cand.key[hit].tolist())
+        violated_total += len(exact)
+        assert found[0] == exact
+        assert exact <= found[3]
+        if scale == 0.02:
+            assert len(found[3]) < 0.2 * n_res
+    assert violated_total > 100
+
+
+def test_reserve_pair_is_solved_again_when_the_lower_fibre_lands():
+    """The crossed pair falling together onto the plane with a forced allowance of 0.1 mm/s (the pair goes to
+    the candidate reserve at every detection: at u⁻ it does not close). When the plane stops the lower
+    fibre, the solve's twists close the pair: it must come back from the reserve and the pass be solved
+    again, with the outcome of the test above (no sinking beyond 3 % of the diameter, at rest on top)."""
+    model, state, obstacles = _crossed_pair_falling_onto_a_plane(0.4e-3)
+    solver = ChainSolver(ChainOptions(friction=FrictionLaw.isotropic(0.47)))
+    reserved = moved = resolves = 0
+    closest = np.inf
+    for _ in range(60):
+        solver._dhat = np.full(2, 1e-4)
+        state = solver.step(model, state, 1e-3, obstacles)
+        st = solver.last_stats
+        reserved = max(reserved, st.reserve_pairs)
+        moved += st.reserve_promoted
+        resolves += st.reserve_resolves
+        closest = min(closest, state.position[1, 1] - state.position[0, 1])
+    assert reserved >= 1 and moved >= 1 and resolves >= 1
+    assert closest > 2 * R_FIBRE * 0.97
+    assert state.position[1, 1] > 3 * R_FIBRE * 0.97
+    assert abs(state.velocity[1, 1]) < 1e-3
+
+
 def test_relative_speed_allowance_bounds_every_close_pair():
     """The bound behind ChainOptions.candidate_band = "relative" (``relative_speed_allowance``): for segments
     whose centres are closer than the grid cell, any point of one moves relative to any point of the other
@@ -809,12 +901,13 @@ def test_long_segment_rests_on_a_sphere_along_its_whole_axis(midpoints):
 def test_fused_detection_pass_and_stepwise_fallback_build_the_same_rows(monkeypatch):
     """The fused detection kernel (order + joint-duplicate filter + rows in one pass) and the stepwise
     path it falls back to for unordered pair lists (sort, filter, fibre_pair_rows) share the row geometry:
-    30 steps of the crossed stack give bitwise the same states."""
+    30 steps of the crossed stack give bitwise the same states (without the candidate reserve, which only
+    the fused pass splits off)."""
     from headsim.solvers._kernels import chains_pairs as KP
 
     def run():
         model, state = _capsule_stack(segments=5)
-        solver = ChainSolver(ChainOptions())
+        solver = ChainSolver(ChainOptions(candidate_reserve=False))
         obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
         for _ in range(30):
             state = solver.step(model, state, 1e-3, obstacles)

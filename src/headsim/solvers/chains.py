@@ -451,14 +451,26 @@ def polylines_from_state(model: ChainModel, state: ChainState) -> np.ndarray:
 # energies and joint gaps
 # ------------------------------------------------------------------------------------------------
 def _inv_inertia_world(model: ChainModel, R: np.ndarray) -> np.ndarray:
-    return np.einsum("sac,sc,sbc->sab", R, 1.0 / model.inertia, R)
+    return _scaled_frames(R, 1.0 / model.inertia)
+
+
+def _scaled_frames(R: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(S, 3, 3) R diag(d) Rᵀ per segment (a world inertia tensor or its inverse; R (S, 3, 3), d (S, 3))."""
+    return np.matmul(R * d[:, None, :], R.transpose(0, 2, 1))
+
+
+def _apply_scaled(R: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(S, 3) R diag(d) Rᵀ w per segment, without forming the matrices (two batched products instead of a
+    four-operand einsum, 8 ms per call on 35,500 segments)."""
+    body = np.matmul(w[:, None, :], R)[:, 0, :] * d
+    return np.matmul(R, body[:, :, None])[:, :, 0]
 
 
 def kinetic_energy(model: ChainModel, state: ChainState) -> float:
     """½ Σ (m v² + ωᵀ I_w ω), J."""
-    Iw = np.einsum("sac,sc,sbc->sab", state.rotation, model.inertia, state.rotation)
-    rot = np.einsum("sa,sab,sb->s", state.angular_velocity, Iw, state.angular_velocity)
-    return float(0.5 * (model.mass * (state.velocity**2).sum(1)).sum() + 0.5 * rot.sum())
+    body = np.matmul(state.angular_velocity[:, None, :], state.rotation)[:, 0, :]  # Rᵀ ω
+    rot = (model.inertia * body * body).sum()
+    return float(0.5 * (model.mass * (state.velocity**2).sum(1)).sum() + 0.5 * rot)
 
 
 def potential_energy(model: ChainModel, state: ChainState, gravity=(0.0, -STANDARD_GRAVITY, 0.0)) -> float:
@@ -479,7 +491,7 @@ def _joint_frames(model: ChainModel, state: ChainState):
 def spring_energy(model: ChainModel, state: ChainState) -> float:
     """½ Σ_j Σ_c K_c (θ_c − θ°_c)², J (θ = log(R_kᵀ R_l) of every active joint)."""
     Rk, active, *_ = _joint_frames(model, state)
-    th = _log_so3_many(np.einsum("sji,sjk->sik", Rk, state.rotation))
+    th = _log_so3_many(np.matmul(Rk.transpose(0, 2, 1), state.rotation))
     e = 0.5 * (model.joint_stiffness * (th - model.rest_rotation) ** 2).sum(1)
     return float(e[active].sum())
 
@@ -828,6 +840,7 @@ class ChainOptions:
     contact_domains: int = 1
     contact_acceleration: str = "nesterov"
     candidate_band: str = "absolute"
+    candidate_reserve: bool = True
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -886,6 +899,9 @@ class StepStats:
     promoted_rows: int = 0  # of those, added during the solves of the step (sum)
     candidate_band: str = ""  # coupled mode: the band the step's candidates came from ("absolute"/"relative")
     candidate_redos: int = 0  # candidate_band="relative": steps redone because a velocity change exceeded δ̂
+    reserve_pairs: int = 0  # candidate_reserve: candidate pairs kept out of the solve at detection
+    reserve_promoted: int = 0  # candidate_reserve: of those, the ones a solve's twists closed (then solved again)
+    reserve_resolves: int = 0  # candidate_reserve: passes solved again for them
     seconds: dict = field(default_factory=dict)
 
     @property
@@ -909,6 +925,21 @@ class _Rows:
     def __post_init__(self):
         if self.tight is None:
             self.tight = np.ones(len(self.body), bool)
+
+
+@dataclass
+class _Reserve:
+    """Candidate pairs kept out of the coupled solve (``ChainOptions.candidate_reserve``): positions ``idx`` in
+    the detection's sorted pairs ``sp`` (P, 2) / ``spar`` (P, 2) and their slacks ``sigma`` (m/s) at the
+    detection's u⁻; ``args`` the geometry inputs of :func:`~headsim.solvers._kernels.chains_pairs.reserve_rows`
+    (the detection state), ``margin`` the rounding margin of the split (m/s)."""
+
+    sp: np.ndarray
+    spar: np.ndarray
+    idx: np.ndarray
+    sigma: np.ndarray
+    args: tuple
+    margin: float
 
 
 def _kernel_rows(rows: _Rows) -> tuple[np.ndarray, int]:
@@ -938,8 +969,7 @@ def _spin_carried(w: np.ndarray, R: np.ndarray, R_mid: np.ndarray, inertia: np.n
     """(S, 3) rad/s: the world angular velocity at the orientations R_mid that keeps the world angular
     momentum R I Rᵀ w of angular velocity w at the orientations R (torque-free rotation, body inertia
     ``inertia`` (S, 3) kg m²)."""
-    momentum = np.einsum("sac,sc,sbc,sb->sa", R, inertia, R, w)
-    return np.einsum("sac,sc,sbc,sb->sa", R_mid, 1.0 / inertia, R_mid, momentum)
+    return _apply_scaled(R_mid, 1.0 / inertia, _apply_scaled(R, inertia, w))
 
 
 def _tangent_frames(axis: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -997,7 +1027,7 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
         return _fail("too large")
     loc = np.full(model.n_segments, -1, np.int64)
     loc[used] = np.arange(n)
-    Iw = np.einsum("sac,sc,sbc->sab", R_mid[used], model.inertia[used], R_mid[used])
+    Iw = _scaled_frames(R_mid[used], model.inertia[used])
     M = np.zeros((N, N))
     for i in range(n):
         M[6 * i:6 * i + 3, 6 * i:6 * i + 3] = model.mass[used[i]] * np.eye(3)
@@ -1233,11 +1263,14 @@ class ChainSolver:
         self._screen_ref = None  # (rows, their n·(u_A − u_B) at the detection's u⁻, that u⁻) of this step
         self._pair_speed = None  # candidate_band="relative": this step's per-segment allowance speed, m/s
         self._dhat = None  # (S,) m/s: allowance for each segment's velocity change in the next step's solves
+        self._allow = None  # candidate_reserve: this step's allowance (S,) m/s of the reserve's split
+        self._reserve = None  # candidate_reserve: this step's reserve pairs (_Reserve)
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
         self._bound = None  # end_velocity_positions: the last step's energy bound B (J, see _energy_bound)
         self._budgeted = False  # the last coupled solve ran under the small-system sweep budget
         self._continued = 0  # end_velocity_positions: exact final solves of the last step
+        self._reserve_moved = 0  # candidate_reserve: reserve pairs this step moved to the candidates
 
     @staticmethod
     def _writable(a):
@@ -1267,7 +1300,7 @@ class ChainSolver:
         return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
 
     # -- detection ---------------------------------------------------------------------------------
-    def _detect(self, model, x, R, dt, obstacles, u_minus=None) -> _Rows:
+    def _detect(self, model, x, R, dt, obstacles, u_minus=None, dq0=None) -> _Rows:
         """Contact rows at the mid-step state x, R. Fibre pairs come from the BVH with per-segment radii grown by
         0.75 |u|Δt of each segment's own speed (|v| + h|ω|, so the relative speed of any pair is covered) and
         are kept within ``contact_band`` + ``speculative_speed``·Δt + 0.75 (|u_a| + |u_b|)Δt of contact. In
@@ -1328,6 +1361,7 @@ class ChainSolver:
                     if not keep.all():
                         parts[i] = _Rows(*[getattr(p, k)[keep] for k in _Rows.__dataclass_fields__])
         fields = _Rows.__dataclass_fields__
+        self._reserve = None
         if o.fibre_contacts and model.n_segments > 1:
             from headsim.collide import FibreBVH, FibreSet
             from headsim.collide.fibre_bvh import PackedFibreBVH
@@ -1376,7 +1410,29 @@ class ChainSolver:
                 rest = (np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin), float(dt), uu,
                         CLOSING_MARGIN_FACTOR, mark, smooth, a, b, n, la, lb, gap, tight)
                 fused = KP.detect_rows_parallel if S >= o.parallel_threshold else KP.detect_rows
-                k = fused(pairs, params, *geo, model.segment_fibre, model.is_root, *rest, key)
+                # candidate_reserve: candidates whose slack exceeds their bodies' allowances stay in reserve
+                allow = self._allow if (coupled and uu_all is not None and self._allow is not None) else np.zeros(0)
+                warm_keys = self._warm[0] if (self._warm is not None and len(allow)) else np.zeros(0, np.int64)
+                res_margin = 0.0
+                if len(allow):
+                    rho = h + r
+                    res_margin = 1e-12 + 1e-9 * float(np.max(np.linalg.norm(uu[:, :3], axis=1)
+                                                              + rho * np.linalg.norm(uu[:, 3:], axis=1)))
+                sp, spar = np.empty((P, 2), np.int64), np.empty((P, 2))
+                res_idx = np.empty(P if len(allow) else 0, np.int64)
+                res_sigma = np.empty(len(res_idx))
+                res_count = np.zeros(1, np.int64)
+                k = fused(pairs, params, *geo, model.segment_fibre, model.is_root, *rest, key,
+                          np.ascontiguousarray(allow, np.float64),
+                          np.zeros((0, 6)) if dq0 is None else np.ascontiguousarray(dq0), self._reserve_half_gap(),
+                          res_margin,
+                          np.ascontiguousarray(warm_keys, np.int64), sp, spar, res_idx, res_sigma, res_count)
+                if k >= 0 and res_count[0]:
+                    nr = int(res_count[0])
+                    self._reserve = _Reserve(sp, spar, res_idx[:nr].copy(), res_sigma[:nr].copy(),
+                                             (x.copy(), np.ascontiguousarray(d3).copy(), h, r) + rest[:4]
+                                             + (uu.copy(),) + rest[5:8],
+                                             res_margin)
                 if k < 0:  # a pair with a ≥ b (not from these trees): sort, filter and build the rows in steps
                     order = np.lexsort((pairs[:, 1], pairs[:, 0]))
                     pairs, params = pairs[order], params[order]
@@ -1534,7 +1590,7 @@ class ChainSolver:
         # implicit spring of every joint over the second half step (§8.5.3; the joint stage's L* grows by
         # Δt K_w Δθ_end + Δt c Δω_rel with Δθ_end = ½Δt Δω_rel): C = ½Δt² K_w + Δt c E
         Rk = np.where(is_root[:, None, None], model.root_frame[fib[seg]], R_mid[kk])
-        Kw = np.einsum("sac,sc,sbc->sab", Rk, model.joint_stiffness[seg], Rk)
+        Kw = _scaled_frames(Rk, model.joint_stiffness[seg])
         C = spring_step * dt * dt * Kw + dt * model.joint_damping[seg, None, None] * np.eye(3)
         wk = np.where(is_root[:, None], 0.0, u_minus[kk, 3:]) if u_minus is not None else 0.0
         w0 = (u_minus[seg, 3:] - wk) if u_minus is not None else np.zeros((len(seg), 3))
@@ -1656,6 +1712,106 @@ class ChainSolver:
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
 
+    def _reserve_half_gap(self) -> bool:
+        """Whether a last pass with ``end_velocity_positions`` may let a speculative row close only ½ g^i (then the
+        reserve's slacks use the smaller gap G of :func:`~headsim.solvers._kernels.chains_pairs._reserve_gap`)."""
+        o = self.options
+        return bool(o.end_velocity_positions and o.harmonisation_iterations > 1 and o.springs_in_first_half_step)
+
+    def _pass_gaps(self, rows, gaps0, dq, endvel, model, row_vn):
+        """The row gaps (m) of a harmonisation pass: (velocity solve's, push-out solve's, reported). gaps0: the
+        rows' gaps at t_i (first order); dq (S, 6): the pass's mid-state change (Δx, Δθ) since the detection
+        state (None: the detection's pass)."""
+        if dq is None:
+            gaps = rows.gap.copy()
+        else:
+            gaps = np.empty(len(rows.body))
+            row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
+            gaps += rows.gap
+        gaps_pos = gaps_stat = gaps
+        if endvel:
+            gaps_stat = gaps0
+            # end gap g^i + Δt J u' (first order; g^i: the rows' gaps at t_i): a speculative row may close the
+            # smaller of ½ g^i and its mid-step gap (so it arrives no faster than g^i/(2Δt) with ½ g^i left, and
+            # the next step's mid-step state does not pass through its partner), a penetration is held
+            # (velocity solve) and pushed out by its depth at t_i (push-out solve)
+            gaps = np.minimum(gaps, np.where(gaps0 > 0, 0.5 * gaps0, gaps0))
+            slop = self.options.push_out_slop * model.radius[rows.body]
+            gaps_pos = np.where(gaps0 < -slop, gaps0 + slop, np.maximum(gaps, 0.0))
+        return gaps, gaps_pos, gaps_stat
+
+    def _reserve_violations(self, model, rows, checks, dq0, dq, endvel, dt, row_vn, rounds):
+        """``ChainOptions.candidate_reserve``: the reserve pairs that a solve's twists would close, appended to
+        ``rows`` as candidates: (the new _Rows, the appended rows, their gaps at t_i), or None when there are none. checks: (u (S, 6), β) of the pass's
+        solves. A reserve pair is promoted by the kernel's rule (n·(u_A − u_B) < target, the target of its gap in
+        this pass); it can only be where σ ≤ B_A + B_B + margin with B = |Δv| + ρ|Δω| + c P/Δt per body: Δ the
+        twist change since the detection's u⁻, ρ = h + r the lever bound, P = |Δx| + ρ|Δθ| of the pass's mid
+        state change since the detection (the pass's gaps, in both solves, are at least G − P_A − P_B, G the
+        gap in σ), c = max(1, 2 × penetration_recovery) (a push-out target −β g/(½Δt) of a gap g ≤ 0); those
+        are tested exactly. After 3 rounds in one step every such suspect is appended (the absolute band's
+        candidates for that step's remaining solves)."""
+        res = self._reserve
+        S = model.n_segments
+        rho = model.half_length + model.radius
+        u_ref = self._screen_ref[2]
+        P = (np.zeros(S) if dq is None else np.linalg.norm(dq[:, :3], axis=1) + rho * np.linalg.norm(dq[:, 3:], axis=1))
+        c = max(1.0, 2.0 * self.options.penetration_recovery)
+        par = S >= self.options.parallel_threshold
+        suspects = np.zeros(len(res.idx), bool)
+        for u, _ in checks:
+            d = u - u_ref
+            bound = np.linalg.norm(d[:, :3], axis=1) + rho * np.linalg.norm(d[:, 3:], axis=1) + c * P / dt
+            out = np.empty(len(res.idx), bool)
+            (KP.reserve_suspects_parallel if par else KP.reserve_suspects)(res.idx, res.sigma, res.sp, bound,
+                                                                             res.margin, out)
+            suspects |= out
+        js = np.nonzero(suspects)[0]
+        if not len(js):
+            return None
+        cand = self._reserve_rows(res, res.idx[js])
+        g0 = None
+        if rounds < 3:  # the exact test of the suspects: the kernel's promotion rule at each solve's twists
+            c0 = np.empty(len(cand.body))
+            row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, c0)
+            g0 = cand.gap - c0
+            gv, gp, _ = self._pass_gaps(cand, g0, dq, endvel, model, row_vn)
+            hit = np.zeros(len(js), bool)
+            for (u, beta), g in zip(checks, (gv, gp)):
+                target = np.where(g > 0, -g / dt, -beta * g / (0.5 * dt))
+                vn = np.empty(len(js))
+                row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, np.ascontiguousarray(u),
+                       vn)
+                hit |= vn < target
+            if not hit.any():
+                return None
+            js = js[hit]
+            g0 = g0[hit]
+            cand = _Rows(*[getattr(cand, f)[hit] for f in _Rows.__dataclass_fields__])
+        keep = np.ones(len(res.idx), bool)
+        keep[js] = False
+        res.idx, res.sigma = res.idx[keep], res.sigma[keep]
+        new = _Rows(*[np.concatenate([getattr(rows, f), getattr(cand, f)]) for f in _Rows.__dataclass_fields__])
+        # the screened first candidate test's reference velocities, for the new rows too
+        sr = self._screen_ref
+        vn = np.empty(len(cand.body))
+        row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, sr[2], vn)
+        self._screen_ref = (new, np.concatenate([sr[1], vn]), sr[2])
+        if g0 is None:
+            row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, vn)
+            g0 = cand.gap - vn
+        self._reserve_moved += len(js)
+        return new, cand, g0
+
+    @staticmethod
+    def _reserve_rows(res, sel):
+        """_Rows of the reserve pairs at positions sel of the detection's sorted pairs (candidates, not tight)."""
+        n = len(sel)
+        out = (np.empty(n, np.int64), np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+               np.empty(n), np.empty(n, bool), np.empty(n, np.int64))
+        KP.reserve_rows(np.ascontiguousarray(sel, np.int64), res.sp, res.spar, *res.args, *out)
+        a, b, nrm, la, lb, gap, tight, key = out
+        return _Rows(a, b, nrm, la, lb, gap, np.zeros(n, bool), np.ones(n, bool), key, tight)
+
     def _energy_bound(self, model, u, u_minus, u_start, R_mid):
         """The bound B = u'ᵀ g(u') − ½‖u' − u^i‖²_M (J) of the step's energy change for the last contact solve's
         result u' (S, 6; ``ChainOptions.end_velocity_positions``): g(u') = M(u' − u⁻) + Sᵀ C (S u' − ω₀) is the
@@ -1665,12 +1821,12 @@ class ChainSolver:
         jk, jl, _, _, _, jc, jw0, _ = self._pass_setup[2]
 
         def mdot(a, b):
-            Lw = np.einsum("sac,sc,sbc,sb->sa", R_mid, model.inertia, R_mid, b[:, 3:])
+            Lw = _apply_scaled(R_mid, model.inertia, b[:, 3:])
             return float((model.mass * (a[:, :3] * b[:, :3]).sum(1)).sum() + (a[:, 3:] * Lw).sum())
 
         wk = np.where((jk >= 0)[:, None], u[np.maximum(jk, 0), 3:], 0.0)
         wrel = u[jl, 3:] - wk
-        spring = np.einsum("jab,jb->ja", jc, wrel - jw0)
+        spring = np.matmul(jc, (wrel - jw0)[:, :, None])[:, :, 0]
         d = u - u_start
         return mdot(u, u - u_minus) + float((wrel * spring).sum()) - 0.5 * mdot(d, d)
 
@@ -1741,6 +1897,7 @@ class ChainSolver:
         self._qp_capped = 0
         self._qp_residual = 0.0
         self._continued = 0
+        self._reserve_moved = 0
         self._bound = None
         half_step = K.half_step if S >= o.parallel_threshold else K.half_step_serial
         x, R, v, w = state.position, state.rotation, state.velocity, state.angular_velocity
@@ -1820,12 +1977,20 @@ class ChainSolver:
                     self._pair_speed = self._relative_pair_speed(model, x_mid, u_minus, dt)
                 # candidate_band="relative": the solves' velocity changes, measured against this u⁻, for the check
                 # against the allowance δ̂ this band was built with and for the next step's δ̂
-                track = o.candidate_band == "relative" and o.contact_coupling == "coupled"
+                # candidate_reserve: the allowance of the split into candidates and reserve pairs (see _detect)
+                reserve_on = o.candidate_reserve and o.contact_coupling == "coupled" and S > 1
+                self._allow = None
+                if reserve_on:
+                    self._allow = np.ascontiguousarray(
+                        self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed)
+                reserve_rounds = 0
+                track = (o.candidate_band == "relative" or reserve_on) and o.contact_coupling == "coupled"
                 if self._pair_speed is not None:
                     dhat_used = self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed
                 u_det = np.array(u_minus) if track else None
                 change = np.zeros(S)
-                rows = self._detect(model, x_mid, R_mid, dt, obstacles, u_minus)
+                rows = self._detect(model, x_mid, R_mid, dt, obstacles, u_minus,
+                                    np.concatenate([x_mid - x, 0.5 * dt * w_hs], axis=1))
                 if o.contact_coupling == "coupled":  # the rows' normal relative velocities at this u⁻: the
                     # coupled kernel screens its first candidate test against them (see _contacts)
                     ref_vn = np.empty(len(rows.body))
@@ -1846,69 +2011,75 @@ class ChainSolver:
                     row_off = np.append(starts, len(order)).astype(np.int64)
                     bodies = bodies.astype(np.int64)
                 lam = np.zeros(len(rows.body))
-            if it == 0:
-                gaps = rows.gap.copy()
-                x_mid0, w_hs0 = x_mid.copy(), w_hs.copy()
-                # row gaps at t_i (first order): the mid-step gaps less the first half step's approach
-                gaps0 = np.empty(len(rows.body))
-                row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever,
-                                       np.ascontiguousarray(np.concatenate([x_mid - x, 0.5 * dt * w_hs], axis=1)),
-                                       gaps0)
-                gaps0 = rows.gap - gaps0
-                warm = self._warm_start_impulses(rows) if o.warm_start else None
-                if warm is not None:  # a contact that carried an impulse last step is a row from the start
-                    rows.tight |= warm[0] > 0
-            else:  # contact points move with the bodies: first-order gap change of the new mid state
-                dq = np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_hs - w_hs0)], axis=1)
-                gaps = np.empty(len(rows.body))
-                row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq, gaps)
-                gaps += rows.gap
-            gaps_pos = gaps_stat = gaps
-            if endvel:
-                gaps_stat = gaps0
-                # end gap g^i + Δt J u' (first order; g^i: the rows' gaps at t_i): a speculative row may close the
-                # smaller of ½ g^i and its mid-step gap (so it arrives no faster than g^i/(2Δt) with ½ g^i left, and
-                # the next step's mid-step state does not pass through its partner), a penetration is held
-                # (velocity solve) and pushed out by its depth at t_i (push-out solve)
-                gaps = np.minimum(gaps, np.where(gaps0 > 0, 0.5 * gaps0, gaps0))
-                slop = o.push_out_slop * model.radius[rows.body]
-                gaps_pos = np.where(gaps0 < -slop, gaps0 + slop, np.maximum(gaps, 0.0))
-            u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
-                                   sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring, spring_step=spring_step,
-                                   joints_last=endvel, budget=endvel)
+            while True:  # candidate_reserve: again with the reserve pairs a solve's twists would close as rows
+                if it == 0:
+                    x_mid0, w_hs0 = x_mid.copy(), w_hs.copy()
+                    # row gaps at t_i (first order): the mid-step gaps less the first half step's approach
+                    dq0 = np.ascontiguousarray(np.concatenate([x_mid - x, 0.5 * dt * w_hs], axis=1))
+                    dq = None
+                    gaps0 = np.empty(len(rows.body))
+                    row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq0, gaps0)
+                    gaps0 = rows.gap - gaps0
+                    warm = self._warm_start_impulses(rows) if o.warm_start else None
+                    if warm is not None:  # a contact that carried an impulse last step is a row from the start
+                        rows.tight |= warm[0] > 0
+                else:  # contact points move with the bodies: first-order gap change of the new mid state
+                    dq = np.ascontiguousarray(np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_hs - w_hs0)], axis=1))
+                gaps, gaps_pos, gaps_stat = self._pass_gaps(rows, gaps0, dq, endvel, model, row_vn)
+                u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
+                                       sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring,
+                                       spring_step=spring_step, joints_last=endvel, budget=endvel)
+                pass_promoted = self._promoted
+                if endvel:
+                    # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met
+                    # its stopping rule with a positive bound is solved on, from its own impulses, to a 10× tighter
+                    # rule
+                    if o.exact_final_solve and self._impulses is not None:
+                        from headsim.solvers.contact_qp import _blas_controller
+
+                        # one BLAS thread: the dense systems are small (a 300 × 300 LU took 0.1 s instead of 1 ms
+                        # with the BLAS threads competing with the Numba ones on 2 loaded cores)
+                        with _blas_controller().limit(limits=1, user_api="blas"):
+                            exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
+                                                       np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
+                                                       self._pass_setup[2], self._mu)
+                        if exact is not None:
+                            u_vel, lam[:] = exact[0], exact[1]
+                            self._impulses = (exact[1].copy(), exact[2])
+                            self._continued += 1
+                    u_start = np.concatenate([v, _spin_carried(w, R, R_mid, model.inertia)], axis=1)
+                    self._bound = self._energy_bound(model, u_vel, u_minus, u_start, R_mid)
+                vel_impulses = self._impulses
+                u_pos = u_vel
+                last = it + 1 == o.harmonisation_iterations
+                beta_pos = o.penetration_recovery * (0.5 if endvel else 1.0)
+                if last and o.penetration_recovery > 0 and (gaps_pos < 0).any():
+                    # split impulse: the penetration push-out moves the positions but is not kept as velocity
+                    # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
+                    u_pos = self._contacts(rows, gaps_pos, beta_pos, order, row_off, bodies, u_minus, model, R_mid,
+                                           Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm, pass_key=it,
+                                           joints_last=o.split_recovery and o.recovery_keeps_joints,
+                                           u_spring=u_spring, spring_step=spring_step, budget=endvel)
+                    pass_promoted += self._promoted
+                if self._reserve is not None:
+                    checks = [(u_vel, 0.0)] + ([(u_pos, beta_pos)] if u_pos is not u_vel else [])
+                    extended = self._reserve_violations(model, rows, checks, dq0, dq, endvel, dt,
+                                                        row_vn, rounds=reserve_rounds)
+                    if extended is not None:
+                        reserve_rounds += 1
+                        rows, added, added_g0 = extended
+                        bodies = rows.body
+                        lam = np.zeros(len(rows.body))
+                        gaps0 = np.concatenate([gaps0, added_g0])
+                        if warm is not None:
+                            warm = (np.concatenate([warm[0], np.zeros(len(added.body))]),
+                                    np.concatenate([warm[1], np.zeros((len(added.body), 2))]))
+                        continue
+                break
+            promoted += pass_promoted
             if track:
                 change = np.maximum(change, _speed_change(u_vel, u_det, model.half_length))
-            if endvel:
-                # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met its
-                # stopping rule with a positive bound is solved on, from its own impulses, to a 10× tighter rule
-                if o.exact_final_solve and self._impulses is not None:
-                    from headsim.solvers.contact_qp import _blas_controller
-
-                    # one BLAS thread: the dense systems are small (a 300 × 300 LU took 0.1 s instead of 1 ms with
-                    # the BLAS threads competing with the Numba ones on 2 loaded cores)
-                    with _blas_controller().limit(limits=1, user_api="blas"):
-                        exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
-                                                   np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
-                                                   self._pass_setup[2], self._mu)
-                    if exact is not None:
-                        u_vel, lam[:] = exact[0], exact[1]
-                        self._impulses = (exact[1].copy(), exact[2])
-                        self._continued += 1
-                u_start = np.concatenate([v, _spin_carried(w, R, R_mid, model.inertia)], axis=1)
-                self._bound = self._energy_bound(model, u_vel, u_minus, u_start, R_mid)
-            vel_impulses = self._impulses
-            promoted += self._promoted
-            u_pos = u_vel
-            last = it + 1 == o.harmonisation_iterations
-            if last and o.penetration_recovery > 0 and (gaps_pos < 0).any():
-                # split impulse: the penetration push-out moves the positions but is not kept as velocity
-                # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
-                u_pos = self._contacts(rows, gaps_pos, o.penetration_recovery * (0.5 if endvel else 1.0), order, row_off,
-                                       bodies, u_minus, model, R_mid, Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid,
-                                       warm, pass_key=it, joints_last=o.split_recovery and o.recovery_keeps_joints,
-                                       u_spring=u_spring, spring_step=spring_step, budget=endvel)
-                promoted += self._promoted
-                if track:
+                if u_pos is not u_vel:
                     change = np.maximum(change, _speed_change(u_pos, u_det, model.half_length))
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
@@ -1959,8 +2130,7 @@ class ChainSolver:
         if u_pos is u_end:
             w_new = w_pos
         else:  # ω of the kept velocity, mapped to the new frame by the same angular-momentum rule
-            Lw = np.einsum("sac,sc,sbc,sb->sa", R_mid, model.inertia, R_mid, u_end[:, 3:])
-            w_new = np.einsum("sac,sc,sbc,sb->sa", R_new, 1.0 / model.inertia, R_new, Lw)
+            w_new = _apply_scaled(R_new, 1.0 / model.inertia, _apply_scaled(R_mid, model.inertia, u_end[:, 3:]))
         secs["integration"] += time.perf_counter() - t3
         if not (np.isfinite(x_new).all() and np.isfinite(v_new).all() and np.isfinite(w_new).all()):
             raise DivergenceError(f"non-finite chain state at t = {state.time + dt:.4g} s (dt = {dt:g} s); "
@@ -1978,6 +2148,10 @@ class ChainSolver:
         st.contacts = int(active.sum())
         st.candidate_band = band_mode if o.contact_coupling == "coupled" else ""
         st.candidate_redos = redo
+        if rows is not None and reserve_on:
+            st.reserve_pairs = 0 if self._reserve is None else int(len(self._reserve.idx) + self._reserve_moved)
+            st.reserve_promoted = self._reserve_moved
+            st.reserve_resolves = reserve_rounds
         if o.contact_coupling == "coupled" and len(lam):
             st.candidate_rows = int((rows.primary & ~rows.tight).sum())
             st.contact_rows = int((rows.primary & rows.tight).sum()) + self._promoted

@@ -16,7 +16,8 @@ from numba import njit, prange
 def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
                    closing_factor, mark_tight, smooth):
     """Row of pair q (the geometry and tests of :func:`fibre_pair_rows`, which the fused detection pass
-    shares). Returns (keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2)."""
+    shares). Returns (keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn) with vn = n·(u_a(p_a) −
+    u_b(p_b)) (m/s; 0 without u)."""
     a = pairs[q, 0]
     b = pairs[q, 1]
     ta = (2.0 * params[q, 0] - 1.0) * half[a]
@@ -30,7 +31,7 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
     gap = dist - ra - rb
     band = 0.5 * band_fraction * (ra + rb) + margin
     if not gap < band + 0.75 * (speed[a] + speed[b]) * dt:
-        return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if dist > 1e-12:
         n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
     else:
@@ -49,6 +50,7 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
     lb1 = tb * d3[b, 1] + rb * n1
     lb2 = tb * d3[b, 2] + rb * n2
     tight = True
+    vn = 0.0
     if have_u:
         va0 = u[a, 0] + u[a, 4] * la2 - u[a, 5] * la1
         va1 = u[a, 1] + u[a, 5] * la0 - u[a, 3] * la2
@@ -56,16 +58,17 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
         vb0 = u[b, 0] + u[b, 4] * lb2 - u[b, 5] * lb1
         vb1 = u[b, 1] + u[b, 5] * lb0 - u[b, 3] * lb2
         vb2 = u[b, 2] + u[b, 3] * lb1 - u[b, 4] * lb0
-        closing = -(n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2))
+        vn = n0 * (va0 - vb0) + n1 * (va1 - vb1) + n2 * (va2 - vb2)
+        closing = -vn
         if -closing > smooth:
             if mark_tight == 2 and gap < 0.0:  # a separating penetration: kept as a candidate row
-                return True, False, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
-            return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+                return True, False, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn
+            return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, vn
         if closing < 0.0:
             closing = 0.0
         if mark_tight:
             tight = gap < band - margin + closing_factor * closing * dt
-    return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2
+    return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn
 
 
 @njit(cache=True, inline="always")
@@ -106,7 +109,7 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     k = 0
     have_u = u.shape[0] > 0
     for q in range(pairs.shape[0]):
-        keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2 = _pair_geometry(
+        keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, _ = _pair_geometry(
             q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
             mark_tight, smooth)
         if not keep:
@@ -332,9 +335,25 @@ def _joint_duplicate(q, start, pairs, params, half_length, radius, fibre, is_roo
     return False
 
 
+@njit(cache=True, inline="always")
+def _reserve_gap(a, b, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, dq0, half_gap):
+    """G of a reserve pair (m; see :func:`_detect_rows_impl`): g, or with ``half_gap`` min(g, ½ g⁰) for g⁰ > 0,
+    else g⁰, g⁰ = g − n·(dq0_a(p_a) − dq0_b(p_b))."""
+    if not half_gap or dq0.shape[0] == 0:
+        return gap
+    da = (n0 * (dq0[a, 0] + dq0[a, 4] * la2 - dq0[a, 5] * la1) + n1 * (dq0[a, 1] + dq0[a, 5] * la0 - dq0[a, 3] * la2)
+          + n2 * (dq0[a, 2] + dq0[a, 3] * la1 - dq0[a, 4] * la0))
+    db = (n0 * (dq0[b, 0] + dq0[b, 4] * lb2 - dq0[b, 5] * lb1) + n1 * (dq0[b, 1] + dq0[b, 5] * lb0 - dq0[b, 3] * lb2)
+          + n2 * (dq0[b, 2] + dq0[b, 3] * lb1 - dq0[b, 4] * lb0))
+    g0 = gap - (da - db)
+    if g0 > 0.0:
+        return min(gap, 0.5 * g0)
+    return g0
+
+
 def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed, band_fraction, margin, dt, u,
                       closing_factor, mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out,
-                      key_out):
+                      key_out, allow, dq0, half_gap, res_margin, warm_keys, sp, spar, res_idx, res_sigma, res_count):
     """Contact rows of unsorted closest-point pairs (pairs (P, 2) with pairs[:, 0] < pairs[:, 1] and distinct
     (a, b), params (P, 2)) in one fused pass, the same rows in the same order as
     ``sort_pairs`` → :func:`joint_duplicate_contacts` → :func:`fibre_pair_rows`: the pairs are ordered by
@@ -342,7 +361,19 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
     reference scene, up to ≈ 1,300), the
     joint copies dropped, and the rows of :func:`fibre_pair_rows` (plus key = a·S + b) written compactly
     to the outputs (length ≥ P). Returns the number of rows, or −1 when a pair has a ≥ b (nothing written:
-    the caller takes the sorting path)."""
+    the caller takes the sorting path).
+
+    sp (P, 2) int64, spar (P, 2): work arrays that receive the pairs and parameters in (a, b) order.
+    Reserve (``ChainOptions.candidate_reserve``; ``allow`` (S,) m/s non-empty, and u given): a candidate
+    (kept, not tight) with gap g > 0 whose key is not among ``warm_keys`` (increasing; the contacts that
+    carried an impulse last step) and whose slack σ = vn + G/Δt (m/s; vn = n·(u_a − u_b) at the contact
+    points, > 0 separating) exceeds allow_a + allow_b + res_margin, with G > 0, is not written as a row but kept
+    in reserve. G = g, or with ``half_gap`` (``end_velocity_positions``) the smallest gap a pass gives the
+    row at the detection's mid state: min(g, ½ g⁰) for g⁰ > 0, else g⁰, g⁰ = g − n·(dq0_a(p_a) − dq0_b(p_b)) its
+    gap at t_i (dq0 (S, 6): the first half step's (Δx, Δθ)). Reserve: res_idx[j] its position in sp, res_sigma[j] = σ, res_count[0] their number. The coupled solve
+    would promote such a pair only if its bodies' twists changed by more than the allowances (the bound of
+    the kernel's screened candidate test); :meth:`headsim.solvers.chains.ChainSolver._reserve_violations`
+    checks that after every solve."""
     P = pairs.shape[0]
     S = half.shape[0]
     have_u = u.shape[0] > 0
@@ -361,8 +392,6 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
         fill[a] += 1
     # the pairs gathered into that order once (the later passes then read them sequentially: through the
     # permutation, the duplicate look-ups and the rows took 3x longer, measured)
-    sp = np.empty((P, 2), np.int64)
-    spar = np.empty((P, 2))
     for i in prange(P):
         q = order[i]
         sp[i, 0] = pairs[q, 0]
@@ -402,42 +431,101 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
             sp[i0 + i, 1] = tb[o[i]]
             spar[i0 + i, 0] = tp[o[i], 0]
             spar[i0 + i, 1] = tp[o[i], 1]
-    # keep flags per sorted position, counted per chunk; then the rows written at the chunks' offsets
+    # keep flags per sorted position (0 dropped, 1 row, 2 reserve), counted per chunk; then the rows and the
+    # reserve written at the chunks' offsets
+    tiers = allow.shape[0] > 0 and have_u
+    nw = warm_keys.shape[0]
     n_chunks = 64
     step = (P + n_chunks - 1) // n_chunks
-    keep = np.empty(P, np.bool_)
+    keep = np.empty(P, np.int8)
     counts = np.zeros(n_chunks + 1, np.int64)
+    rcounts = np.zeros(n_chunks + 1, np.int64)
     for c in prange(n_chunks):
         k = 0
+        kr = 0
         for i in range(c * step, min(P, (c + 1) * step)):
-            ok = False
+            flag = 0
             if not _joint_duplicate(i, start, sp, spar, half, radius, fibre, is_root):
-                ok = _pair_geometry(i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt,
-                                    u, have_u, closing_factor, mark_tight, smooth)[0]
-            keep[i] = ok
-            k += ok
+                ok, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn = _pair_geometry(
+                    i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
+                    mark_tight, smooth)
+                if ok:
+                    flag = 1
+                    if tiers and not tight and gap > 0.0:
+                        a = sp[i, 0]
+                        b = sp[i, 1]
+                        G = _reserve_gap(a, b, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, dq0, half_gap)
+                        if (G > 0.0 and vn + G / dt > allow[a] + allow[b] + res_margin
+                                and _find_key(warm_keys, a * S + b, 0, nw) < 0):
+                            flag = 2
+            keep[i] = flag
+            if flag == 1:
+                k += 1
+            elif flag == 2:
+                kr += 1
         counts[c + 1] = k
+        rcounts[c + 1] = kr
     for c in range(n_chunks):
         counts[c + 1] += counts[c]
+        rcounts[c + 1] += rcounts[c]
     for c in prange(n_chunks):
         k = counts[c]
+        kr = rcounts[c]
         for i in range(c * step, min(P, (c + 1) * step)):
-            if not keep[i]:
+            if keep[i] == 0:
                 continue
-            _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2 = _pair_geometry(
+            _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn = _pair_geometry(
                 i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
                 mark_tight, smooth)
+            if keep[i] == 2:
+                res_idx[kr] = i
+                res_sigma[kr] = vn + _reserve_gap(sp[i, 0], sp[i, 1], gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
+                                                  dq0, half_gap) / dt
+                kr += 1
+                continue
             a = sp[i, 0]
             b = sp[i, 1]
             _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
                        a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out)
             key_out[k] = a * S + b
             k += 1
+    res_count[0] = rcounts[n_chunks]
     return counts[n_chunks]
 
 
 detect_rows = njit(cache=True)(_detect_rows_impl)
 detect_rows_parallel = njit(cache=True, parallel=True)(_detect_rows_impl)
+
+
+def _reserve_suspects_impl(res_idx, res_sigma, sp, bound, margin, out):
+    """out[j] = True where reserve pair j (position res_idx[j] in the sorted pairs sp, slack res_sigma[j] m/s;
+    see :func:`_detect_rows_impl`) may be violated: σ_j ≤ bound_a + bound_b + margin, bound (S,) m/s each
+    body's bound of its slack change (twist change and gap change, see
+    :meth:`headsim.solvers.chains.ChainSolver._reserve_violations`)."""
+    for j in prange(res_idx.shape[0]):
+        i = res_idx[j]
+        out[j] = res_sigma[j] <= bound[sp[i, 0]] + bound[sp[i, 1]] + margin
+
+
+reserve_suspects = njit(cache=True)(_reserve_suspects_impl)
+reserve_suspects_parallel = njit(cache=True, parallel=True)(_reserve_suspects_impl)
+
+
+@njit(cache=True)
+def reserve_rows(sel, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor, mark_tight,
+                 smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out, key_out):
+    """The rows of the pairs at positions sel of the sorted pairs sp, spar, written as :func:`_detect_rows_impl`
+    writes its rows (same inputs: the same geometry), for reserve pairs that become candidates."""
+    S = half.shape[0]
+    have_u = u.shape[0] > 0
+    for k in range(sel.shape[0]):
+        i = sel[k]
+        _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, _ = _pair_geometry(
+            i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
+            mark_tight, smooth)
+        _write_row(k, sp[i, 0], sp[i, 1], tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
+                   a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out)
+        key_out[k] = sp[i, 0] * S + sp[i, 1]
 
 
 @njit(cache=True)
