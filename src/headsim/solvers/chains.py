@@ -77,6 +77,18 @@ there); the solve ends with a full sweep that found none (or after 2 × ``qp_ite
 set the solution satisfies is therefore the one of the absolute band, as before: a candidate the solve
 leaves out is one whose final velocities do not close its gap within the step.
 
+Candidate reserve (``candidate_reserve``, default): most candidates are far from being promoted (2.3 M on
+the ringlet start, of which ≈ 1,300 per step become rows), yet each cost its row, its gather and its
+screened tests in every solve. A candidate whose slack at u⁻, σ = n·(u_A − u_B) + G/Δt (G its gap, or the
+smaller gap the last pass may give it), exceeds the allowances δ̂_A + δ̂_B of its bodies (the velocity
+change each is expected to get in the step's solves, as for ``candidate_band = "relative"``) is kept in
+reserve instead: only its position and σ. After every solve the reserve is checked with the bound of the
+kernel's own screened test — σ ≤ B_A + B_B with B = |Δv| + (h + r)|Δω| + c·|mid-state change|/Δt per body —
+and the suspects by the exact promotion rule at the solve's twists; the ones a solve would close become
+candidates and the harmonisation pass is solved again (after 3 such rounds in a step every suspect is
+taken). So the contact set is still the absolute band's; a wrong allowance costs a repeated solve, not a
+missed contact. Ringlet start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
+
 Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
 t₂ = n × t₁; the admissible tangential impulses are the polygon λ_α·conv{μ_β d_β}
 (V-representation, eq. 8.51) with generators on the elliptic limit curve of :class:`FrictionLaw`; the
@@ -92,7 +104,8 @@ stack test for the sag it leaves).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -273,6 +286,18 @@ class ChainModel:
             raise ParameterError("inertia must be > 0")
         if (self.joint_stiffness < 0).any() or (self.joint_damping < 0).any():
             raise ParameterError("joint stiffness and damping must be ≥ 0")
+
+    @cached_property
+    def kernel(self) -> "ChainModel":
+        """This model with writable copies of its arrays, for the Numba kernels (cached; the solver steps with
+        it). The model's own arrays are read-only, and Numba compiles a separate, slower version of a kernel
+        for read-only arguments: the fused detection pass took 1.0–1.2 s per step on the reference scene with
+        the read-only half lengths and radii against 0.36 s with writable copies (measured, same inputs)."""
+        m = object.__new__(ChainModel)
+        for f in fields(self):
+            object.__setattr__(m, f.name, np.array(getattr(self, f.name)))
+        m.__dict__["kernel"] = m
+        return m
 
     @property
     def n_fibres(self) -> int:
@@ -750,7 +775,7 @@ class ChainOptions:
         is the former behaviour (the gap closed within the contact solve), which on a resting strand asks
         for closing speeds 2 d/Δt that the contact bounds (−g/Δt) forbid: the impulses then grow with
         the sweeps instead of converging (``benchmarks/bench_contact_convergence.py``).
-    contact_domains : coupled mode, number of body domains (integer ≥ 1, default 1) whose contact rows one
+    contact_domains : coupled mode, number of body domains (integer ≥ 1, default 2) whose contact rows one
         Gauss–Seidel sweep visits in parallel (Numba ``prange``, one domain per thread). The touched fibres
         are split by a recursive bisection of their contact graph (``_fibre_domains``, balanced by row
         count); a row whose two bodies lie in one domain belongs to that domain, the others (the cross rows:
@@ -767,12 +792,13 @@ class ChainOptions:
         this job): 2 domains 0.415–0.52 s per solve against 0.485–0.58 s (≈ 15 % less wall time), the same
         distance to a 6,000-sweep answer (relative kinetic-metric error 0.4417 / 0.5087 against 0.4412 /
         0.5066 at the 60-sweep cap); with a second job on the machine (load 2–3.5) no gain at all (the
-        threads share one core). Default 1 because the gain is small and machine-dependent, and because the
-        different iterate at the sweep cap changes the (chaotic) drape trajectories: the strict-xfail Table
-        8.1 iso/aniso test of ``tests/hair/test_drape.py`` gave 1.107 (1 domain), 1.035, 0.993, 1.053
-        (2, 3, 4 domains), i.e. it passed by chance for 2 and 3 domains, not reliably; with
-        ``half_step_projection`` alone 0.993, 0.981, 0.948, 1.074; with it and ``separating_candidates``
-        (the defaults) 1.072 (1 domain).
+        threads share one core). The default was 1 until issue 10's thirteenth session (small, machine-dependent
+        gain; the different iterate changed the chaotic drape trajectories, and the strict-xfail Table 8.1
+        iso/aniso test, then asserted at 0.7 s alone, passed by chance for 2 and 3 domains). It is 2 since the
+        landing of the reference strand was measured: on one captured solve at t = 86 ms (≈ 310 k rows from the
+        start, 169 k candidates promoted in the solve, 60 sweeps), 1 domain 2.24–2.72 s, 2 domains 1.59–1.65 s,
+        4 domains 1.78 s; whole reference steps at the ringlet start 1.95–2.01 → 1.78–1.83 s (contacts 0.82 →
+        0.65 s).
     contact_acceleration : coupled mode (the contact solves and the half-step projection): ``"nesterov"``
         (default) extrapolates the contact impulses after every sweep along their last change, with adaptive
         restart (``momentum`` of :func:`headsim.solvers._kernels.chains_coupled._coupled_iterate_impl`); the
@@ -802,6 +828,11 @@ class ChainOptions:
         itself, 13 of 15 steps were redone (segments stopped by fibres the previous step's allowance did not
         foresee), 24–30 s against 11.5–15 s; 393 s against 262 s in all. A better allowance (e.g. from the
         closing speeds of each segment's candidate pairs at the end of the previous step) is the next step.
+    candidate_reserve : coupled mode, keep the candidates whose slack at u⁻ exceeds their bodies' allowances out
+        of the solve and check them after every solve (module docstring, "Candidate reserve"; default True).
+        The states differ from ``False`` only where a candidate is promoted during an iteration but not
+        violated at its end (same fixed point). The allowance δ̂ is the one of ``candidate_band = "relative"``
+        (its velocity-change tracking then runs in every step).
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -837,7 +868,7 @@ class ChainOptions:
     exact_final_solve: bool = True
     push_out_slop: float = 1e-3
     separating_candidates: bool = True
-    contact_domains: int = 1
+    contact_domains: int = 2
     contact_acceleration: str = "nesterov"
     candidate_band: str = "absolute"
     candidate_reserve: bool = True
@@ -902,6 +933,7 @@ class StepStats:
     reserve_pairs: int = 0  # candidate_reserve: candidate pairs kept out of the solve at detection
     reserve_promoted: int = 0  # candidate_reserve: of those, the ones a solve's twists closed (then solved again)
     reserve_resolves: int = 0  # candidate_reserve: passes solved again for them
+    band_extensions: int = 0  # candidate_band="relative": detections with a band widened to the twist changes
     seconds: dict = field(default_factory=dict)
 
     @property
@@ -1264,13 +1296,16 @@ class ChainSolver:
         self._pair_speed = None  # candidate_band="relative": this step's per-segment allowance speed, m/s
         self._dhat = None  # (S,) m/s: allowance for each segment's velocity change in the next step's solves
         self._allow = None  # candidate_reserve: this step's allowance (S,) m/s of the reserve's split
-        self._reserve = None  # candidate_reserve: this step's reserve pairs (_Reserve)
+        self._reserve = []  # candidate_reserve: this step's reserve pairs (_Reserve chunks)
+        self._det_buffers = None  # work arrays of the fused detection pass (see _detection_buffers)
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
         self._bound = None  # end_velocity_positions: the last step's energy bound B (J, see _energy_bound)
         self._budgeted = False  # the last coupled solve ran under the small-system sweep budget
         self._continued = 0  # end_velocity_positions: exact final solves of the last step
         self._reserve_moved = 0  # candidate_reserve: reserve pairs this step moved to the candidates
+        self._band_extensions = 0  # candidate_band="relative": widened detections of the last step
+        self._rel_grid = None  # candidate_band="relative": (dev + ½ spread, base band, grid cell) of this step
 
     @staticmethod
     def _writable(a):
@@ -1300,7 +1335,7 @@ class ChainSolver:
         return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
 
     # -- detection ---------------------------------------------------------------------------------
-    def _detect(self, model, x, R, dt, obstacles, u_minus=None, dq0=None) -> _Rows:
+    def _detect(self, model, x, R, dt, obstacles, u_minus=None, dq0=None, old_speed=None) -> _Rows:
         """Contact rows at the mid-step state x, R. Fibre pairs come from the BVH with per-segment radii grown by
         0.75 |u|Δt of each segment's own speed (|v| + h|ω|, so the relative speed of any pair is covered) and
         are kept within ``contact_band`` + ``speculative_speed``·Δt + 0.75 (|u_a| + |u_b|)Δt of contact. In
@@ -1361,7 +1396,7 @@ class ChainSolver:
                     if not keep.all():
                         parts[i] = _Rows(*[getattr(p, k)[keep] for k in _Rows.__dataclass_fields__])
         fields = _Rows.__dataclass_fields__
-        self._reserve = None
+        self._reserve = []
         if o.fibre_contacts and model.n_segments > 1:
             from headsim.collide import FibreBVH, FibreSet
             from headsim.collide.fibre_bvh import PackedFibreBVH
@@ -1418,21 +1453,22 @@ class ChainSolver:
                     rho = h + r
                     res_margin = 1e-12 + 1e-9 * float(np.max(np.linalg.norm(uu[:, :3], axis=1)
                                                               + rho * np.linalg.norm(uu[:, 3:], axis=1)))
-                sp, spar = np.empty((P, 2), np.int64), np.empty((P, 2))
-                res_idx = np.empty(P if len(allow) else 0, np.int64)
-                res_sigma = np.empty(len(res_idx))
+                sp, spar, tmp_p, tmp_r, res_idx, res_sigma = self._detection_buffers(P, fresh=old_speed is not None)
+                if not len(allow):
+                    res_idx, res_sigma = res_idx[:0], res_sigma[:0]
                 res_count = np.zeros(1, np.int64)
                 k = fused(pairs, params, *geo, model.segment_fibre, model.is_root, *rest, key,
                           np.ascontiguousarray(allow, np.float64),
                           np.zeros((0, 6)) if dq0 is None else np.ascontiguousarray(dq0), self._reserve_half_gap(),
                           res_margin,
-                          np.ascontiguousarray(warm_keys, np.int64), sp, spar, res_idx, res_sigma, res_count)
+                          np.ascontiguousarray(warm_keys, np.int64), sp, spar, tmp_p, tmp_r, res_idx, res_sigma,
+                          res_count, np.zeros(0) if old_speed is None else np.ascontiguousarray(old_speed, np.float64))
                 if k >= 0 and res_count[0]:
                     nr = int(res_count[0])
-                    self._reserve = _Reserve(sp, spar, res_idx[:nr].copy(), res_sigma[:nr].copy(),
+                    self._reserve.append(_Reserve(sp[:P], spar[:P], res_idx[:nr].copy(), res_sigma[:nr].copy(),
                                              (x.copy(), np.ascontiguousarray(d3).copy(), h, r) + rest[:4]
-                                             + (uu.copy(),) + rest[5:8],
-                                             res_margin)
+                                                  + (uu.copy(),) + rest[5:8],
+                                                  res_margin))
                 if k < 0:  # a pair with a ≥ b (not from these trees): sort, filter and build the rows in steps
                     order = np.lexsort((pairs[:, 1], pairs[:, 0]))
                     pairs, params = pairs[order], params[order]
@@ -1712,6 +1748,21 @@ class ChainSolver:
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
 
+    def _detection_buffers(self, n, fresh=False):
+        """Work arrays of the fused detection pass for n pairs (sorted pairs and parameters, their intermediate
+        order, the reserve's positions and slacks), kept across steps (grown by 25 % when too small): fresh
+        arrays of the reference scene's ≈ 5 M pairs cost their page faults every step. ``fresh``: new arrays
+        (a second detection in the step, whose reserve must not overwrite the first one's)."""
+        if fresh:
+            return (np.empty((n, 2), np.int64), np.empty((n, 2)), np.empty((n, 2), np.int64), np.empty((n, 2)),
+                    np.empty(n, np.int64), np.empty(n))
+        buf = self._det_buffers
+        if buf is None or len(buf[0]) < n:
+            m = int(1.25 * n) + 16
+            buf = self._det_buffers = (np.empty((m, 2), np.int64), np.empty((m, 2)), np.empty((m, 2), np.int64),
+                                       np.empty((m, 2)), np.empty(m, np.int64), np.empty(m))
+        return tuple(b[:n] for b in buf)
+
     def _reserve_half_gap(self) -> bool:
         """Whether a last pass with ``end_velocity_positions`` may let a speculative row close only ½ g^i (then the
         reserve's slacks use the smaller gap G of :func:`~headsim.solvers._kernels.chains_pairs._reserve_gap`)."""
@@ -1740,67 +1791,82 @@ class ChainSolver:
             gaps_pos = np.where(gaps0 < -slop, gaps0 + slop, np.maximum(gaps, 0.0))
         return gaps, gaps_pos, gaps_stat
 
-    def _reserve_violations(self, model, rows, checks, dq0, dq, endvel, dt, row_vn, rounds):
+    def _reserve_violations(self, model, rows, checks, dq0, dq, endvel, dt, row_vn, rounds, chunks=None,
+                            append=True):
         """``ChainOptions.candidate_reserve``: the reserve pairs that a solve's twists would close, appended to
-        ``rows`` as candidates: (the new _Rows, the appended rows, their gaps at t_i), or None when there are none. checks: (u (S, 6), β) of the pass's
-        solves. A reserve pair is promoted by the kernel's rule (n·(u_A − u_B) < target, the target of its gap in
-        this pass); it can only be where σ ≤ B_A + B_B + margin with B = |Δv| + ρ|Δω| + c P/Δt per body: Δ the
-        twist change since the detection's u⁻, ρ = h + r the lever bound, P = |Δx| + ρ|Δθ| of the pass's mid
-        state change since the detection (the pass's gaps, in both solves, are at least G − P_A − P_B, G the
-        gap in σ), c = max(1, 2 × penetration_recovery) (a push-out target −β g/(½Δt) of a gap g ≤ 0); those
-        are tested exactly. After 3 rounds in one step every such suspect is appended (the absolute band's
-        candidates for that step's remaining solves)."""
-        res = self._reserve
+        ``rows`` as candidates: (the new _Rows, the appended rows, their gaps at t_i), or None when there are none.
+        checks: (u (S, 6), β) of the pass's solves; chunks: the reserve chunks to check (None: all); ``append``
+        False: return only the rows taken from the reserve (or None). A reserve pair
+        is promoted by the kernel's rule (n·(u_A − u_B) < target, the target of its gap in this pass); it can only
+        be where σ ≤ B_A + B_B + margin with B = |Δv| + ρ|Δω| + c P/Δt per body: Δ the twist change since the
+        detection's u⁻, ρ = h + r the lever bound, P = |Δx| + ρ|Δθ| of the pass's mid state change since the
+        detection (the pass's gaps, in both solves, are at least G − P_A − P_B, G the gap in σ), c = max(1, 2 ×
+        penetration_recovery) (a push-out target −β g/(½Δt) of a gap g ≤ 0); those are tested exactly. After 3
+        rounds in one step every such suspect is appended (the absolute band's candidates for that step's
+        remaining solves)."""
         S = model.n_segments
         rho = model.half_length + model.radius
         u_ref = self._screen_ref[2]
         P = (np.zeros(S) if dq is None else np.linalg.norm(dq[:, :3], axis=1) + rho * np.linalg.norm(dq[:, 3:], axis=1))
         c = max(1.0, 2.0 * self.options.penetration_recovery)
         par = S >= self.options.parallel_threshold
-        suspects = np.zeros(len(res.idx), bool)
+        bounds = []
         for u, _ in checks:
             d = u - u_ref
-            bound = np.linalg.norm(d[:, :3], axis=1) + rho * np.linalg.norm(d[:, 3:], axis=1) + c * P / dt
+            bounds.append(np.linalg.norm(d[:, :3], axis=1) + rho * np.linalg.norm(d[:, 3:], axis=1) + c * P / dt)
+        taken = []
+        for res in (self._reserve if chunks is None else chunks):
+            suspects = np.zeros(len(res.idx), bool)
             out = np.empty(len(res.idx), bool)
-            (KP.reserve_suspects_parallel if par else KP.reserve_suspects)(res.idx, res.sigma, res.sp, bound,
-                                                                             res.margin, out)
-            suspects |= out
-        js = np.nonzero(suspects)[0]
-        if not len(js):
+            for bound in bounds:
+                (KP.reserve_suspects_parallel if par else KP.reserve_suspects)(res.idx, res.sigma, res.sp, bound,
+                                                                                 res.margin, out)
+                suspects |= out
+            js = np.nonzero(suspects)[0]
+            if not len(js):
+                continue
+            cand = self._reserve_rows(res, res.idx[js])
+            if rounds < 3:  # the exact test of the suspects: the kernel's promotion rule at each solve's twists
+                hit = self._closed_by(cand, checks, dq0, dq, endvel, dt, model, row_vn)
+                if not hit.any():
+                    continue
+                js = js[hit]
+                cand = _Rows(*[getattr(cand, f)[hit] for f in _Rows.__dataclass_fields__])
+            keep = np.ones(len(res.idx), bool)
+            keep[js] = False
+            res.idx, res.sigma = res.idx[keep], res.sigma[keep]
+            self._reserve_moved += len(js)
+            taken.append(cand)
+        if not taken:
             return None
-        cand = self._reserve_rows(res, res.idx[js])
-        g0 = None
-        if rounds < 3:  # the exact test of the suspects: the kernel's promotion rule at each solve's twists
-            c0 = np.empty(len(cand.body))
-            row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, c0)
-            g0 = cand.gap - c0
-            gv, gp, _ = self._pass_gaps(cand, g0, dq, endvel, model, row_vn)
-            hit = np.zeros(len(js), bool)
-            for (u, beta), g in zip(checks, (gv, gp)):
-                target = np.where(g > 0, -g / dt, -beta * g / (0.5 * dt))
-                vn = np.empty(len(js))
-                row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, np.ascontiguousarray(u),
-                       vn)
-                hit |= vn < target
-            if not hit.any():
-                return None
-            js = js[hit]
-            g0 = g0[hit]
-            cand = _Rows(*[getattr(cand, f)[hit] for f in _Rows.__dataclass_fields__])
-        keep = np.ones(len(res.idx), bool)
-        keep[js] = False
-        res.idx, res.sigma = res.idx[keep], res.sigma[keep]
+        cand = _Rows(*[np.concatenate([getattr(t, f) for t in taken]) for f in _Rows.__dataclass_fields__])
+        return self._append_rows(rows, cand, dq0, row_vn) if append else cand
+
+    def _closed_by(self, cand, checks, dq0, dq, endvel, dt, model, row_vn):
+        """(n,) bool: the rows ``cand`` that the kernel would promote at some solve's twists of ``checks`` (u, β):
+        n·(u_A − u_B) < the target of their gap in this pass (see :meth:`_pass_gaps`)."""
+        c0 = np.empty(len(cand.body))
+        row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, c0)
+        gv, gp, _ = self._pass_gaps(cand, cand.gap - c0, dq, endvel, model, row_vn)
+        hit = np.zeros(len(cand.body), bool)
+        vn = np.empty(len(cand.body))
+        for (u, beta), g in zip(checks, (gv, gp)):
+            target = np.where(g > 0, -g / dt, -beta * g / (0.5 * dt))
+            row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, np.ascontiguousarray(u), vn)
+            hit |= vn < target
+        return hit
+
+    def _append_rows(self, rows, cand, dq0, row_vn):
+        """(rows + cand, cand, cand's gaps at t_i (m)): candidate rows appended within a step, with their reference
+        normal velocities for the kernel's screened first candidate test."""
         new = _Rows(*[np.concatenate([getattr(rows, f), getattr(cand, f)]) for f in _Rows.__dataclass_fields__])
-        # the screened first candidate test's reference velocities, for the new rows too
         sr = self._screen_ref
         vn = np.empty(len(cand.body))
         row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, sr[2], vn)
         self._screen_ref = (new, np.concatenate([sr[1], vn]), sr[2])
-        if g0 is None:
-            row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, vn)
-            g0 = cand.gap - vn
-        self._reserve_moved += len(js)
-        return new, cand, g0
+        c0 = np.empty(len(cand.body))
+        row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, c0)
+        return new, cand, cand.gap - c0
 
     @staticmethod
     def _reserve_rows(res, sel):
@@ -1884,10 +1950,47 @@ class ChainSolver:
             return None
         if a.sum() >= self._speed.sum():
             return None
+        self._rel_grid = (dev + 0.5 * spread, base, cell)
         return a
+
+    def _widened_band(self, model, rows, dhat, checks, x_det, R_det, u_det, dq0, dq, endvel, dt, row_vn):
+        """candidate_band="relative": a pass's twists changed some segments by more than the allowance δ̂ the
+        band was built with. Detects again, at the detection's state, with the band of the allowance ``dhat``
+        (S,) m/s (≥ the changes), keeping only the fibre pairs the first band did not reach (the grid cell must
+        still cover the wider band, else None: the step is redone with the absolute band). Of those pairs,
+        the ones within the row band or without positive slack are appended as rows and candidates; the others
+        join the reserve, where the ones the pass's twists close are appended too. Returns
+        (rows, appended rows, their gaps at t_i) when rows were appended, the input ``rows`` alone when none
+        were, or None."""
+        rel, base, cell = self._rel_grid
+        a = (rel + 1.5 * dhat) / 0.75
+        if base + 1.5 * dt * float(a.max()) > cell:
+            return None
+        saved = (self._reserve, self._pair_speed, self._allow, self._bvh)
+        old_speed = self._pair_speed
+        try:
+            self._pair_speed, self._allow = a, np.zeros(model.n_segments)
+            new = self._detect(model, x_det, R_det, dt, (), u_det, dq0, old_speed=old_speed)
+            chunks = self._reserve
+        finally:
+            self._reserve, _, self._allow, self._bvh = saved
+        self._pair_speed = a
+        self._reserve = self._reserve + chunks
+        self._band_extensions += 1
+        taken = [new] if len(new.body) else []
+        if chunks:
+            out = self._reserve_violations(model, rows, checks, dq0, dq, endvel, dt, row_vn, 0, chunks=chunks,
+                                           append=False)
+            if out is not None:
+                taken.append(out)
+        if not taken:
+            return rows
+        cand = _Rows(*[np.concatenate([getattr(t, f) for t in taken]) for f in _Rows.__dataclass_fields__])
+        return self._append_rows(rows, cand, dq0, row_vn)
 
     def _step(self, model, state, dt, obstacles, redo, force_absolute=False):
         """One step (:meth:`step`); ``redo``: attempts of this step so far (candidate_band="relative")."""
+        model = model.kernel
         o = self.options
         t_all = time.perf_counter()
         secs = {"joints": 0.0, "detection": 0.0, "contacts": 0.0, "integration": 0.0}
@@ -1898,6 +2001,7 @@ class ChainSolver:
         self._qp_residual = 0.0
         self._continued = 0
         self._reserve_moved = 0
+        self._band_extensions = 0
         self._bound = None
         half_step = K.half_step if S >= o.parallel_threshold else K.half_step_serial
         x, R, v, w = state.position, state.rotation, state.velocity, state.angular_velocity
@@ -1926,7 +2030,7 @@ class ChainSolver:
                 # impulses: they enter u⁻ only, where the contact solve sees them (see the option's notes)
                 if self._unsprung is None or self._unsprung[0] is not model:
                     self._unsprung = (model, replace(model, joint_stiffness=0.0 * model.joint_stiffness,
-                                                     joint_damping=0.0 * model.joint_damping))
+                                                     joint_damping=0.0 * model.joint_damping).kernel)
                 vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra)
                 half_step(x, R, vJ0, wJ0, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
                 w_hs = w_mid
@@ -1991,6 +2095,8 @@ class ChainSolver:
                 change = np.zeros(S)
                 rows = self._detect(model, x_mid, R_mid, dt, obstacles, u_minus,
                                     np.concatenate([x_mid - x, 0.5 * dt * w_hs], axis=1))
+                R_det = R_mid.copy() if self._pair_speed is not None else None
+                band_rounds = 0
                 if o.contact_coupling == "coupled":  # the rows' normal relative velocities at this u⁻: the
                     # coupled kernel screens its first candidate test against them (see _contacts)
                     ref_vn = np.empty(len(rows.body))
@@ -2061,11 +2167,28 @@ class ChainSolver:
                                            joints_last=o.split_recovery and o.recovery_keeps_joints,
                                            u_spring=u_spring, spring_step=spring_step, budget=endvel)
                     pass_promoted += self._promoted
-                if self._reserve is not None:
-                    checks = [(u_vel, 0.0)] + ([(u_pos, beta_pos)] if u_pos is not u_vel else [])
+                checks = [(u_vel, 0.0)] + ([(u_pos, beta_pos)] if u_pos is not u_vel else [])
+                extended = None
+                if self._reserve:
                     extended = self._reserve_violations(model, rows, checks, dq0, dq, endvel, dt,
                                                         row_vn, rounds=reserve_rounds)
-                    if extended is not None:
+                if extended is None and self._pair_speed is not None and band_rounds < 3:
+                    # candidate_band="relative": a twist change beyond the allowance δ̂ of the band: the pairs of
+                    # the band widened to the changes, at once (instead of redoing the step with the absolute band)
+                    pc = _speed_change(u_vel, u_det, model.half_length)
+                    if u_pos is not u_vel:
+                        pc = np.maximum(pc, _speed_change(u_pos, u_det, model.half_length))
+                    over = pc > dhat_used
+                    if over.any():
+                        band_rounds += 1
+                        dhat_new = np.where(over, 1.25 * pc, dhat_used)
+                        wid = self._widened_band(model, rows, dhat_new, checks, x_mid0, R_det, u_det, dq0, dq,
+                                                 endvel, dt, row_vn)
+                        if wid is not None:
+                            dhat_used = dhat_new
+                            if wid is not rows:
+                                extended = wid
+                if extended is not None:
                         reserve_rounds += 1
                         rows, added, added_g0 = extended
                         bodies = rows.body
@@ -2148,8 +2271,9 @@ class ChainSolver:
         st.contacts = int(active.sum())
         st.candidate_band = band_mode if o.contact_coupling == "coupled" else ""
         st.candidate_redos = redo
+        st.band_extensions = self._band_extensions
         if rows is not None and reserve_on:
-            st.reserve_pairs = 0 if self._reserve is None else int(len(self._reserve.idx) + self._reserve_moved)
+            st.reserve_pairs = int(sum(len(c.idx) for c in self._reserve) + self._reserve_moved)
             st.reserve_promoted = self._reserve_moved
             st.reserve_resolves = reserve_rounds
         if o.contact_coupling == "coupled" and len(lam):
