@@ -300,11 +300,12 @@ def test_candidate_reserve_finds_every_pair_a_solve_would_close():
 def test_reserve_pair_is_solved_again_when_the_lower_fibre_lands():
     """The crossed pair falling together onto the plane with a forced allowance of 0.1 mm/s (the pair goes to
     the candidate reserve at every detection: at u⁻ it does not close). When the plane stops the lower
-    fibre, the solve's twists close the pair: it must come back from the reserve and the pass be solved
-    again, with the outcome of the test above (no sinking beyond 3 % of the diameter, at rest on top)."""
+    fibre, the solve's twists close the pair: it must come back from the reserve (into the next pass's solves,
+    or the last pass solved again with it), with the outcome of the test above (no sinking beyond 3 % of the
+    diameter, at rest on top)."""
     model, state, obstacles = _crossed_pair_falling_onto_a_plane(0.4e-3)
     solver = ChainSolver(ChainOptions(friction=FrictionLaw.isotropic(0.47)))
-    reserved = moved = resolves = 0
+    reserved = moved = 0
     closest = np.inf
     for _ in range(60):
         solver._dhat = np.full(2, 1e-4)
@@ -312,9 +313,8 @@ def test_reserve_pair_is_solved_again_when_the_lower_fibre_lands():
         st = solver.last_stats
         reserved = max(reserved, st.reserve_pairs)
         moved += st.reserve_promoted
-        resolves += st.reserve_resolves
         closest = min(closest, state.position[1, 1] - state.position[0, 1])
-    assert reserved >= 1 and moved >= 1 and resolves >= 1
+    assert reserved >= 1 and moved >= 1
     assert closest > 2 * R_FIBRE * 0.97
     assert state.position[1, 1] > 3 * R_FIBRE * 0.97
     assert abs(state.velocity[1, 1]) < 1e-3
@@ -361,21 +361,24 @@ def test_relative_candidate_band_keeps_the_pair_falling_together_apart(forced_al
     upper one must still get its row in time: never sinking into the lower one by 3 % of the diameter, at
     rest on top. With ``forced_allowance`` the velocity-change allowance δ̂ is set to 0.1 mm/s before every
     step (a predictor that misses the landing, which the obstacle rows' prior otherwise covers): the check
-    after the solves must catch the landing's ≈ 0.5 m/s change and redo the step."""
+    after the solves must catch the landing's ≈ 0.5 m/s change and widen the band to it (a second detection
+    of the pairs the first band missed, on a coarser reference grid where the wider band needs one) instead of
+    redoing the step."""
     model, state, obstacles = _crossed_pair_falling_onto_a_plane(2.4e-3)
     solver = ChainSolver(ChainOptions(friction=FrictionLaw.isotropic(0.47), candidate_band="relative"))
-    modes, redos = [], 0
+    modes, redos, widened = [], 0, 0
     closest = np.inf
     for _ in range(60):
         if forced_allowance:
             solver._dhat = np.full(2, 1e-4)
         state = solver.step(model, state, 1e-3, obstacles)
+        widened += solver.last_stats.band_extensions
         modes.append(solver.last_stats.candidate_band)
         redos += solver.last_stats.candidate_redos
         closest = min(closest, state.position[1, 1] - state.position[0, 1])
     assert "relative" in modes
     if forced_allowance:
-        assert redos >= 1
+        assert widened >= 1 and redos == 0  # measured: 58 steps widened (none redone)
     assert closest > 2 * R_FIBRE * 0.97
     assert state.position[1, 1] > 3 * R_FIBRE * 0.97
     assert abs(state.velocity[1, 1]) < 1e-3

@@ -85,8 +85,8 @@ change each is expected to get in the step's solves, as for ``candidate_band = "
 reserve instead: only its position and σ. After every solve the reserve is checked with the bound of the
 kernel's own screened test — σ ≤ B_A + B_B with B = |Δv| + (h + r)|Δω| + c·|mid-state change|/Δt per body —
 and the suspects by the exact promotion rule at the solve's twists; the ones a solve would close become
-candidates and the harmonisation pass is solved again (after 3 such rounds in a step every suspect is
-taken). So the contact set is still the absolute band's; a wrong allowance costs a repeated solve, not a
+candidates: the last harmonisation pass is then solved again (after 3 such rounds in a step every suspect
+is taken), an earlier pass hands them to the next one (it only predicts that pass's mid state). So the contact set is still the absolute band's; a wrong allowance costs a repeated solve, not a
 missed contact. Ringlet start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
 
 Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
@@ -1923,11 +1923,22 @@ class ChainSolver:
 
     def _relative_pair_speed(self, model, x_mid, u_minus, dt):
         """(S,) m/s allowance speed of every segment for the fibre pairs' candidate band
-        (``ChainOptions.candidate_band = "relative"``), or None where the absolute band is narrower. The grid
-        cell is at least the largest centre distance of a candidate pair, so that the field's spread bound holds."""
-        o = self.options
+        (``ChainOptions.candidate_band = "relative"``), or None where the absolute band is narrower."""
         S = model.n_segments
         dhat = self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed
+        out = self._relative_speeds(model, x_mid, u_minus, dt, dhat)
+        if out is None or out[0].sum() >= self._speed.sum():
+            return None
+        self._rel_grid = out[1]
+        return out[0]
+
+    def _relative_speeds(self, model, x_mid, u_minus, dt, dhat, cell=None):
+        """(a (S,) m/s, (dev + ½ spread, base band, grid cell)) of the relative band for the allowance ``dhat``
+        (S,) m/s: a = (dev + ½ spread + 1.5 δ̂)/0.75 (see ``ChainOptions.candidate_band``), or None where the
+        reference grid would exceed :data:`MAX_REFERENCE_GRID_CELLS`. The grid cell (at least ``cell``) covers
+        the largest centre distance of a candidate pair, so that the field's spread bound holds."""
+        o = self.options
+        S = model.n_segments
         h, r = model.half_length, model.radius
         x = np.ascontiguousarray(x_mid)
         v = np.ascontiguousarray(u_minus[:, :3])
@@ -1935,7 +1946,7 @@ class ChainSolver:
         hw, mw = self._writable(h), self._writable(model.mass)
         extent = x.max(axis=0) - x.min(axis=0)
         base = 2.0 * h.max() + 2.0 * r.max() * (1.0 + o.contact_band) + o.speculative_speed * dt
-        cell = base + 2.0 * dt * float(self._speed.max())
+        cell = max(base + 2.0 * dt * float(self._speed.max()), 0.0 if cell is None else cell)
         dev, spread = np.empty(S), np.empty(S)
         for _ in range(4):
             if np.prod(extent / cell + 6.0) > MAX_REFERENCE_GRID_CELLS:  # fibres spread far apart: no grid
@@ -1944,30 +1955,32 @@ class ChainSolver:
             a = (dev + 0.5 * spread + 1.5 * dhat) / 0.75
             need = base + 1.5 * dt * float(a.max())
             if need <= cell:
-                break
+                return a, (dev + 0.5 * spread, base, cell)
             cell = 1.25 * need
-        else:
-            return None
-        if a.sum() >= self._speed.sum():
-            return None
-        self._rel_grid = (dev + 0.5 * spread, base, cell)
-        return a
+        return None
 
     def _widened_band(self, model, rows, dhat, checks, x_det, R_det, u_det, dq0, dq, endvel, dt, row_vn):
         """candidate_band="relative": a pass's twists changed some segments by more than the allowance δ̂ the
         band was built with. Detects again, at the detection's state, with the band of the allowance ``dhat``
-        (S,) m/s (≥ the changes), keeping only the fibre pairs the first band did not reach (the grid cell must
-        still cover the wider band, else None: the step is redone with the absolute band). Of those pairs,
+        (S,) m/s (≥ the changes), keeping only the fibre pairs the first band did not reach (on a coarser
+        reference grid where the wider band needs it; None where that grid would be too large: the step is then
+        redone with the absolute band). Of those pairs,
         the ones within the row band or without positive slack are appended as rows and candidates; the others
         join the reserve, where the ones the pass's twists close are appended too. Returns
         (rows, appended rows, their gaps at t_i) when rows were appended, the input ``rows`` alone when none
         were, or None."""
         rel, base, cell = self._rel_grid
+        old_speed = self._pair_speed
         a = (rel + 1.5 * dhat) / 0.75
         if base + 1.5 * dt * float(a.max()) > cell:
-            return None
+            # the wider band needs a coarser reference grid: its bound holds for pairs within its cell, and the
+            # band is kept at least the first one's (so that the pairs found before are the ones it excludes)
+            out = self._relative_speeds(model, x_det, u_det, dt, dhat, cell=1.25 * (base + 1.5 * dt * float(a.max())))
+            if out is None:
+                return None
+            a = np.maximum(out[0], old_speed)
+            self._rel_grid = out[1]
         saved = (self._reserve, self._pair_speed, self._allow, self._bvh)
-        old_speed = self._pair_speed
         try:
             self._pair_speed, self._allow = a, np.zeros(model.n_segments)
             new = self._detect(model, x_det, R_det, dt, (), u_det, dq0, old_speed=old_speed)
@@ -2189,15 +2202,21 @@ class ChainSolver:
                             if wid is not rows:
                                 extended = wid
                 if extended is not None:
+                    rows, added, added_g0 = extended
+                    bodies = rows.body
+                    lam = np.zeros(len(rows.body))
+                    gaps0 = np.concatenate([gaps0, added_g0])
+                    nz = len(added.body)
+                    if warm is not None:
+                        warm = (np.concatenate([warm[0], np.zeros(nz)]), np.concatenate([warm[1], np.zeros((nz, 2))]))
+                    if last:  # the pass whose twists the step keeps: solved again with the new candidates
                         reserve_rounds += 1
-                        rows, added, added_g0 = extended
-                        bodies = rows.body
-                        lam = np.zeros(len(rows.body))
-                        gaps0 = np.concatenate([gaps0, added_g0])
-                        if warm is not None:
-                            warm = (np.concatenate([warm[0], np.zeros(len(added.body))]),
-                                    np.concatenate([warm[1], np.zeros((len(added.body), 2))]))
                         continue
+                    # an earlier pass only predicts the mid state of the next one: its new candidates join the
+                    # next pass's solves (whose check guards the result) without solving this one again
+                    if vel_impulses is not None:
+                        vel_impulses = (np.concatenate([vel_impulses[0], np.zeros(nz)]),
+                                        np.concatenate([vel_impulses[1], np.zeros((nz, 2))]))
                 break
             promoted += pass_promoted
             if track:
