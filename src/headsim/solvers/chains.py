@@ -86,7 +86,12 @@ reserve instead: only its position and σ. After every solve the reserve is chec
 kernel's own screened test — σ ≤ B_A + B_B with B = |Δv| + (h + r)|Δω| + c·|mid-state change|/Δt per body —
 and the suspects by the exact promotion rule at the solve's twists; the ones a solve would close become
 candidates: the last harmonisation pass is then solved again (after 3 such rounds in a step every suspect
-is taken), an earlier pass hands them to the next one (it only predicts that pass's mid state). So the contact set is still the absolute band's; a wrong allowance costs a repeated solve, not a
+is taken), an earlier pass hands them to the next one (it only predicts that pass's mid state).
+
+Relative band (``candidate_band = "relative"``, default): the pairs the BVH reports at all are those within
+the band of each segment's speed *relative to a smooth reference velocity field* plus its allowance δ̂, not
+of its absolute speed (a strand falling at 0.6 m/s: 9 M → 1.2 M candidate and reserve pairs); where a pass's
+velocity changes exceed δ̂ the band is widened to them and the pairs it adds are checked (see the option). So the contact set is still the absolute band's; a wrong allowance costs a repeated solve, not a
 missed contact. Ringlet start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
 
 Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
@@ -808,26 +813,32 @@ class ChainOptions:
         sweeps 0.308 off against 0.344 for the former 60 plain ones). ``"none"``: the plain Gauss–Seidel
         (with ``qp_iterations=60`` the former iterates, bitwise).
     candidate_band : coupled mode, how far apart a fibre pair may be and still be a candidate (the pairs the
-        solve may turn into rows). ``"absolute"`` (default): within 0.75 (s_a + s_b) Δt of the row band, s the
-        segments' own speeds |v| + h|ω| (it grows with the fall speed although neighbouring fibres move
-        together). ``"relative"`` (opt-in, issue 10): s_a = (dev_a + ½ spread_a + 1.5 δ̂_a)/0.75 with
-        dev and spread the bound of the segment's speed relative to a smooth reference velocity field
+        solve may turn into rows). ``"absolute"``: within 0.75 (s_a + s_b) Δt of the row band, s the segments'
+        own speeds |v| + h|ω| (it grows with the fall speed although neighbouring fibres move together).
+        ``"relative"`` (default since issue 10's thirteenth session): s_a = (dev_a + ½ spread_a + 1.5 δ̂_a)/0.75
+        with dev and spread the bound of the segment's speed relative to a smooth reference velocity field
         (:func:`headsim.solvers._kernels.chains_pairs.relative_speed_allowance`) and δ̂_a an allowance for the
         velocity change the step's solves may give it (1.5 × the change measured in the previous step, at
-        least |g|Δt; the segment's own speed where it has an obstacle row). After the step's solves every
-        segment's measured change δ (against the detection's u⁻) is checked against δ̂: where it is larger the
-        step is redone with the absolute band (and the next step's δ̂ raised to 1.25 δ), so every pair that the
-        final velocities close within a relative-band step was a candidate (the bound, not a heuristic). The absolute band is used for a step whose relative band would be wider. Measured
-        (``benchmarks/bench_drape.py``, 355 × 100): derived geometry at t = 60 ms (``--settle 58 --steps 3``,
-        0.6 m/s fall) 7.5 M → 1.26 M candidates, 5.97 → 1.47 s per step, the same contacts, penetration,
-        kinetic energy and joint gap to the printed digits after 60 steps in each mode; the ringlet start
-        (``--geometry former``) keeps the absolute band in every step (its velocities are incoherent across
-        the grid cells), bitwise the former states. Not the default because of the landing: from the saved
-        t = 60 ms state, 30 steps in each mode (the same trajectory to the printed digits in both; 2 shared
-        cores): 60–80 ms 3.2 s against 6–7 s per step, but 80–90 ms, where the strand lands on the sphere and on
-        itself, 13 of 15 steps were redone (segments stopped by fibres the previous step's allowance did not
-        foresee), 24–30 s against 11.5–15 s; 393 s against 262 s in all. A better allowance (e.g. from the
-        closing speeds of each segment's candidate pairs at the end of the previous step) is the next step.
+        least |g|Δt; the segment's own speed where it has an obstacle row). After each harmonisation pass's
+        solves every segment's measured change δ (against the detection's u⁻) is checked against δ̂: where it
+        is larger, the pairs of the band widened to 1.25 δ are detected again at the detection's state (only
+        those the first band missed; on a coarser reference grid where the wider band needs one), the ones
+        the solves' twists close (or that close at u⁻) join the candidates and the pass is solved again
+        (:meth:`ChainSolver._widened_band`; 3 widenings per step at most). Only where that is not possible
+        (a reference grid over :data:`MAX_REFERENCE_GRID_CELLS`, or a 4th widening) is the step redone with
+        the absolute band. So every pair that the final velocities close within a relative-band step was a
+        candidate (the bound, not a heuristic). The absolute band is used for a step whose relative band
+        would be wider (the ringlet start, ``--geometry former``: velocities incoherent across the grid cells).
+        Measured (``benchmarks/bench_drape.py`` scene, 355 × 100, from a saved t = 60 ms state of the derived
+        geometry, 30 steps to 90 ms, with the candidate reserve and 2 contact domains, machine otherwise idle):
+        absolute 174 s, relative 163 s; 61–82 ms (falling, 0.6 m/s) 1.3–2.5 s per step against 2.8–4.6 s
+        (detection 0.5 s against 2.2–3.5 s: 1.2–1.5 M against 9–9.7 M candidate and reserve pairs), 83–84 ms
+        (the strand lands on the sphere and on itself) 8.6 / 31 s against 10.9 / 31 s, 85–90 ms 13–17 s
+        against 9–14 s (the widened bands' candidates: 1.8–2.4 M against 1.4–1.8 M, not understood). The
+        trajectories agree to the printed digits (contacts, penetration, kinetic energy) up to 83 ms and
+        differ slightly after the landing. Before the widening (issue 10's twelfth session) a violated
+        allowance redid the whole step with the absolute band: 13 of the 15 landing steps were redone, 393 s
+        against 262 s.
     candidate_reserve : coupled mode, keep the candidates whose slack at u⁻ exceeds their bodies' allowances out
         of the solve and check them after every solve (module docstring, "Candidate reserve"; default True).
         The states differ from ``False`` only where a candidate is promoted during an iteration but not
@@ -870,7 +881,7 @@ class ChainOptions:
     separating_candidates: bool = True
     contact_domains: int = 2
     contact_acceleration: str = "nesterov"
-    candidate_band: str = "absolute"
+    candidate_band: str = "relative"
     candidate_reserve: bool = True
 
     def __post_init__(self):
@@ -2188,7 +2199,9 @@ class ChainSolver:
                 if extended is None and self._pair_speed is not None and band_rounds < 3:
                     # candidate_band="relative": a twist change beyond the allowance δ̂ of the band: the pairs of
                     # the band widened to the changes, at once (instead of redoing the step with the absolute band)
-                    pc = _speed_change(u_vel, u_det, model.half_length)
+                    # the changes of this pass's solves and of the earlier passes' (one of which may have handed
+                    # reserve pairs on without this check)
+                    pc = np.maximum(change, _speed_change(u_vel, u_det, model.half_length))
                     if u_pos is not u_vel:
                         pc = np.maximum(pc, _speed_change(u_pos, u_det, model.half_length))
                     over = pc > dhat_used
