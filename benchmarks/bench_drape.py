@@ -151,7 +151,7 @@ absolute-speed band cost more than the solves: the fused detection pass 1.3 s, t
 0.58 s, the kernel's O(candidates) work in each of the 3 solves. The candidate band is the lever left: it
 grows with |u|Δt of each segment although a falling strand's neighbours move together.
 
-``ChainOptions.candidate_band = "relative"`` (opt-in): the candidate band from each segment's speed relative to a
+``ChainOptions.candidate_band = "relative"`` (opt-in in the twelfth session, the default since the thirteenth): the candidate band from each segment's speed relative to a
 smooth reference field (velocities gathered on a grid) plus an allowance for its velocity change in the solves,
 checked after them (a step whose change exceeds it is redone with the absolute band). ``--settle 58 --steps 3
 --coupled-only --set "candidate_band='relative'"`` (derived geometry, t = 60 ms, the whole 60 steps run in the
@@ -161,6 +161,30 @@ gap 4.941e-07 m. On the ringlet start every step keeps the absolute band (2.74 s
 states). Through the landing (from a saved t = 60 ms state, 30 steps per mode, 2 shared cores; the same trajectory
 to the printed digits) the relative mode redid 13 of the 15 steps from 80 to 90 ms and took 393 s against 262 s:
 it stays opt-in until its allowance foresees segments stopped by other fibres.
+
+Issue 10, thirteenth session (machine otherwise idle; "old" = commit db3666c's source tree run from a git worktree
+with the same venv, alternating with the new tree in one session):
+
+* Reference ringlet start (``--fibres 355 --segments 100 --settle 3 --steps 3 --coupled-only --geometry former``):
+  old 3.07 / 3.07 s per step (detection 1.25 s, contacts 1.50 s), new **1.95 / 1.91 s** (detection 1.00 s,
+  contacts 0.68 s); 7,626 active contacts (old 7,423), max penetration 44.2 µm (42.0), kinetic energy
+  5.7314e-05 J (5.7300e-05), max joint gap 22.4 µm (22.5). What changed, in the order it was measured:
+  the candidate reserve (``ChainOptions.candidate_reserve``: 2.3 M → 0.22 M candidates in the solves, 2.1 M
+  kept in reserve and checked after every solve; contacts 1.25 → 0.80 s per step; 2.69 / 2.63 → 2.27 / 2.31 s
+  per step with the einsum change below in both), the four-operand ``einsum`` calls of the integration and the
+  energies replaced by batched products (0.12 s per step), the detected pairs ordered by a parallel two-pass
+  radix sort with work buffers kept across steps (the fused pass 0.68 → 0.49 s), the solver stepping with
+  writable copies of the model's arrays (``ChainModel.kernel``: Numba's read-only specialisation of the fused
+  detection pass took 1.0–1.2 s against 0.36 s on the same inputs), and 2 contact domains
+  (``contact_domains`` = 2: contacts 0.82 → 0.65 s). The relative band does not act here (every step keeps the
+  absolute band). Goal 0.2 s: still ≈ 10× off.
+* The fall and the landing (derived geometry, from a saved t = 60 ms state, 30 steps to 90 ms, candidate reserve
+  and 2 domains in both): relative band (the default now) 163 s, absolute 174 s (the twelfth session's code:
+  262 s absolute, 393 s relative). Per step: 61–82 ms 1.3–2.5 s against 2.8–4.6 s; 83 ms 8.6 s against
+  10.9 s; 84 ms (the strand lands: 300–500 k reserve pairs closed by the solves, 5 re-solves of the last pass)
+  31 s against 31 s; 85–90 ms 13–17 s against 9–14 s (50–57 k active contacts, 190–330 k rows, 1.8–2.4 M
+  candidates against 1.4–1.8 M, of which ≈ 170 k are promoted in each solve; the solves run 60 sweeps). One
+  captured landing solve (t = 86 ms) took 2.24–2.72 s with 1 contact domain, 1.59–1.65 s with 2, 1.78 s with 4.
 """
 
 from __future__ import annotations
