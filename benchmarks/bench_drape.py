@@ -183,7 +183,9 @@ with the same venv, alternating with the new tree in one session):
   262 s absolute, 393 s relative). Per step: 61–82 ms 1.3–2.5 s against 2.8–4.6 s; 83 ms 8.6 s against
   10.9 s; 84 ms (the strand lands: 300–500 k reserve pairs closed by the solves, 5 re-solves of the last pass)
   31 s against 31 s; 85–90 ms 13–17 s against 9–14 s (50–57 k active contacts, 190–330 k rows, 1.8–2.4 M
-  candidates against 1.4–1.8 M, of which ≈ 170 k are promoted in each solve; the solves run 60 sweeps). One
+  candidates against 1.4–1.8 M, of which ≈ 170 k are promoted in each solve; the solves run 60 sweeps; the
+  relative band is the wider one there: its radii carry 2 δ̂ with δ̂ = 1.5 × the last step's change, more than
+  the stopped segments' own speeds, which alone make the absolute band). One
   captured landing solve (t = 86 ms) took 2.24–2.72 s with 1 contact domain, 1.59–1.65 s with 2, 1.78 s with 4.
 """
 
