@@ -179,13 +179,14 @@ with the same venv, alternating with the new tree in one session):
   (``contact_domains`` = 2: contacts 0.82 → 0.65 s). The relative band does not act here (every step keeps the
   absolute band). Goal 0.2 s: still ≈ 10× off.
 * The fall and the landing (derived geometry, from a saved t = 60 ms state, 30 steps to 90 ms, candidate reserve
-  and 2 domains in both): relative band (the default now) 163 s, absolute 174 s (the twelfth session's code:
+  and 2 domains in both): relative band (the default now) 156 s, absolute 177 s (the twelfth session's code:
   262 s absolute, 393 s relative). Per step: 61–82 ms 1.3–2.5 s against 2.8–4.6 s; 83 ms 8.6 s against
-  10.9 s; 84 ms (the strand lands: 300–500 k reserve pairs closed by the solves, 5 re-solves of the last pass)
-  31 s against 31 s; 85–90 ms 13–17 s against 9–14 s (50–57 k active contacts, 190–330 k rows, 1.8–2.4 M
+  11.5 s; 84 ms (the strand lands: 300–500 k reserve pairs closed by the solves, 5 re-solves of the last pass)
+  30 s against 31 s; 85–90 ms 12–16 s against 9–14 s (50–57 k active contacts, 190–330 k rows, 1.7–2.1 M
   candidates against 1.4–1.8 M, of which ≈ 170 k are promoted in each solve; the solves run 60 sweeps; the
-  relative band is the wider one there: its radii carry 2 δ̂ with δ̂ = 1.5 × the last step's change, more than
-  the stopped segments' own speeds, which alone make the absolute band). One
+  relative band is the wider one there: its radii carry the allowance 2 δ̂, the absolute band none). The
+  allowance of a segment with an obstacle row is at least its speed at the end of the step (at its start
+  before: 163 s for the relative band, 10–15 % more candidates at 85–90 ms). One
   captured landing solve (t = 86 ms) took 2.24–2.72 s with 1 contact domain, 1.59–1.65 s with 2, 1.78 s with 4.
 """
 
