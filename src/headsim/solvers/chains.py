@@ -86,13 +86,14 @@ reserve instead: only its position and σ. After every solve the reserve is chec
 kernel's own screened test — σ ≤ B_A + B_B with B = |Δv| + (h + r)|Δω| + c·|mid-state change|/Δt per body —
 and the suspects by the exact promotion rule at the solve's twists; the ones a solve would close become
 candidates: the last harmonisation pass is then solved again (after 3 such rounds in a step every suspect
-is taken), an earlier pass hands them to the next one (it only predicts that pass's mid state).
+is taken), an earlier pass hands them to the next one (it only predicts that pass's mid state). So the
+contact set is still the band's; a wrong allowance costs a repeated solve, not a missed contact. Ringlet
+start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
 
 Relative band (``candidate_band = "relative"``, default): the pairs the BVH reports at all are those within
 the band of each segment's speed *relative to a smooth reference velocity field* plus its allowance δ̂, not
 of its absolute speed (a strand falling at 0.6 m/s: 9 M → 1.2 M candidate and reserve pairs); where a pass's
-velocity changes exceed δ̂ the band is widened to them and the pairs it adds are checked (see the option). So the contact set is still the absolute band's; a wrong allowance costs a repeated solve, not a
-missed contact. Ringlet start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
+velocity changes exceed δ̂ the band is widened to them and the pairs it adds are checked (see the option).
 
 Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
 t₂ = n × t₁; the admissible tangential impulses are the polygon λ_α·conv{μ_β d_β}
@@ -998,10 +999,24 @@ def _kernel_rows(rows: _Rows) -> tuple[np.ndarray, int]:
 
 
 
+def _point_speed(u: np.ndarray, lever) -> np.ndarray:
+    """(n,) m/s: |v| + ρ|ω| of twists u (n, 6), a bound of the speed of every point within ρ (m; scalar or (n,))
+    of a body's centre (ρ = h: the segment's axis; h + r: its contact points)."""
+    return np.linalg.norm(u[:, :3], axis=1) + lever * np.linalg.norm(u[:, 3:], axis=1)
+
+
 def _speed_change(u: np.ndarray, u_ref: np.ndarray, half_length: np.ndarray) -> np.ndarray:
     """(S,) m/s: |Δv| + h|Δω| of twists u against u_ref (S, 6), the largest speed change of a segment's points."""
-    d = u - u_ref
-    return np.linalg.norm(d[:, :3], axis=1) + half_length * np.linalg.norm(d[:, 3:], axis=1)
+    return _point_speed(u - u_ref, half_length)
+
+
+def _gaps_at_start(rows: "_Rows", dq0: np.ndarray, row_vn) -> np.ndarray:
+    """(n,) m: the rows' gaps at t_i to first order, their mid-step gaps less the first half step's approach
+    (dq0 (S, 6): that half step's (Δx, Δθ); row_vn: a :func:`~headsim.solvers._kernels.chains_pairs.row_normal_velocity`
+    kernel)."""
+    approach = np.empty(len(rows.body))
+    row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq0, approach)
+    return rows.gap - approach
 
 
 def _chain_offsets(jk: np.ndarray, jl: np.ndarray) -> np.ndarray:
@@ -1467,8 +1482,7 @@ class ChainSolver:
                 res_margin = 0.0
                 if len(allow):
                     rho = h + r
-                    res_margin = 1e-12 + 1e-9 * float(np.max(np.linalg.norm(uu[:, :3], axis=1)
-                                                              + rho * np.linalg.norm(uu[:, 3:], axis=1)))
+                    res_margin = 1e-12 + 1e-9 * float(np.max(_point_speed(uu, rho)))
                 sp, spar, tmp_p, tmp_r, res_idx, res_sigma = self._detection_buffers(P, fresh=old_speed is not None)
                 if not len(allow):
                     res_idx, res_sigma = res_idx[:0], res_sigma[:0]
@@ -1823,13 +1837,13 @@ class ChainSolver:
         S = model.n_segments
         rho = model.half_length + model.radius
         u_ref = self._screen_ref[2]
-        P = (np.zeros(S) if dq is None else np.linalg.norm(dq[:, :3], axis=1) + rho * np.linalg.norm(dq[:, 3:], axis=1))
+        P = np.zeros(S) if dq is None else _point_speed(dq, rho)
         c = max(1.0, 2.0 * self.options.penetration_recovery)
         par = S >= self.options.parallel_threshold
         bounds = []
         for u, _ in checks:
             d = u - u_ref
-            bounds.append(np.linalg.norm(d[:, :3], axis=1) + rho * np.linalg.norm(d[:, 3:], axis=1) + c * P / dt)
+            bounds.append(_point_speed(d, rho) + c * P / dt)
         taken = []
         for res in (self._reserve if chunks is None else chunks):
             suspects = np.zeros(len(res.idx), bool)
@@ -1861,9 +1875,7 @@ class ChainSolver:
     def _closed_by(self, cand, checks, dq0, dq, endvel, dt, model, row_vn):
         """(n,) bool: the rows ``cand`` that the kernel would promote at some solve's twists of ``checks`` (u, β):
         n·(u_A − u_B) < the target of their gap in this pass (see :meth:`_pass_gaps`)."""
-        c0 = np.empty(len(cand.body))
-        row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, c0)
-        gv, gp, _ = self._pass_gaps(cand, cand.gap - c0, dq, endvel, model, row_vn)
+        gv, gp, _ = self._pass_gaps(cand, _gaps_at_start(cand, dq0, row_vn), dq, endvel, model, row_vn)
         hit = np.zeros(len(cand.body), bool)
         vn = np.empty(len(cand.body))
         for (u, beta), g in zip(checks, (gv, gp)):
@@ -1880,9 +1892,7 @@ class ChainSolver:
         vn = np.empty(len(cand.body))
         row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, sr[2], vn)
         self._screen_ref = (new, np.concatenate([sr[1], vn]), sr[2])
-        c0 = np.empty(len(cand.body))
-        row_vn(cand.body, cand.partner, cand.normal, cand.lever, cand.partner_lever, dq0, c0)
-        return new, cand, cand.gap - c0
+        return new, cand, _gaps_at_start(cand, dq0, row_vn)
 
     @staticmethod
     def _reserve_rows(res, sel):
@@ -1937,11 +1947,10 @@ class ChainSolver:
             raise ParameterError(f"dt must be > 0 s, got {dt}")
         return self._step(model, state, dt, obstacles, 0)
 
-    def _relative_pair_speed(self, model, x_mid, u_minus, dt):
+    def _relative_pair_speed(self, model, x_mid, u_minus, dt, dhat):
         """(S,) m/s allowance speed of every segment for the fibre pairs' candidate band
-        (``ChainOptions.candidate_band = "relative"``), or None where the absolute band is narrower."""
-        S = model.n_segments
-        dhat = self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed
+        (``ChainOptions.candidate_band = "relative"``) with the allowance ``dhat`` (S,) m/s, or None where the
+        absolute band is narrower."""
         out = self._relative_speeds(model, x_mid, u_minus, dt, dhat)
         if out is None or out[0].sum() >= self._speed.sum():
             return None
@@ -2105,24 +2114,22 @@ class ChainSolver:
             t2 = time.perf_counter()
             secs["integration"] += t2 - t1
             if rows is None:
-                self._speed = np.linalg.norm(u_minus[:, :3], axis=1) + model.half_length * np.linalg.norm(
-                    u_minus[:, 3:], axis=1)
+                self._speed = _point_speed(u_minus, model.half_length)
+                # the allowance δ̂ (S,) m/s of this step's velocity changes (the previous step's prediction; the
+                # segments' own speeds in the first step) for the relative band and the reserve's split
+                dhat_used = np.ascontiguousarray(
+                    self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed)
                 self._pair_speed = None
                 if (o.candidate_band == "relative" and o.contact_coupling == "coupled" and S > 1
                         and not force_absolute):
-                    self._pair_speed = self._relative_pair_speed(model, x_mid, u_minus, dt)
-                # candidate_band="relative": the solves' velocity changes, measured against this u⁻, for the check
-                # against the allowance δ̂ this band was built with and for the next step's δ̂
+                    self._pair_speed = self._relative_pair_speed(model, x_mid, u_minus, dt, dhat_used)
                 # candidate_reserve: the allowance of the split into candidates and reserve pairs (see _detect)
                 reserve_on = o.candidate_reserve and o.contact_coupling == "coupled" and S > 1
-                self._allow = None
-                if reserve_on:
-                    self._allow = np.ascontiguousarray(
-                        self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed)
+                self._allow = dhat_used if reserve_on else None
                 reserve_rounds = 0
+                # the solves' velocity changes, measured against this u⁻, for the check against the allowance the
+                # relative band was built with and for the next step's δ̂
                 track = (o.candidate_band == "relative" or reserve_on) and o.contact_coupling == "coupled"
-                if self._pair_speed is not None:
-                    dhat_used = self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed
                 u_det = np.array(u_minus) if track else None
                 change = np.zeros(S)
                 rows = self._detect(model, x_mid, R_mid, dt, obstacles, u_minus,
@@ -2155,9 +2162,7 @@ class ChainSolver:
                     # row gaps at t_i (first order): the mid-step gaps less the first half step's approach
                     dq0 = np.ascontiguousarray(np.concatenate([x_mid - x, 0.5 * dt * w_hs], axis=1))
                     dq = None
-                    gaps0 = np.empty(len(rows.body))
-                    row_vn(rows.body, rows.partner, rows.normal, rows.lever, rows.partner_lever, dq0, gaps0)
-                    gaps0 = rows.gap - gaps0
+                    gaps0 = _gaps_at_start(rows, dq0, row_vn)
                     warm = self._warm_start_impulses(rows) if o.warm_start else None
                     if warm is not None:  # a contact that carried an impulse last step is a row from the start
                         rows.tight |= warm[0] > 0
@@ -2200,6 +2205,10 @@ class ChainSolver:
                                            u_spring=u_spring, spring_step=spring_step, budget=endvel)
                     pass_promoted += self._promoted
                 checks = [(u_vel, 0.0)] + ([(u_pos, beta_pos)] if u_pos is not u_vel else [])
+                if track:  # this pass's velocity changes (against the detection's u⁻)
+                    pass_change = _speed_change(u_vel, u_det, model.half_length)
+                    if u_pos is not u_vel:
+                        pass_change = np.maximum(pass_change, _speed_change(u_pos, u_det, model.half_length))
                 extended = None
                 if self._reserve:
                     extended = self._reserve_violations(model, rows, checks, dq0, dq, endvel, dt,
@@ -2209,9 +2218,7 @@ class ChainSolver:
                     # the band widened to the changes, at once (instead of redoing the step with the absolute band)
                     # the changes of this pass's solves and of the earlier passes' (one of which may have handed
                     # reserve pairs on without this check)
-                    pc = np.maximum(change, _speed_change(u_vel, u_det, model.half_length))
-                    if u_pos is not u_vel:
-                        pc = np.maximum(pc, _speed_change(u_pos, u_det, model.half_length))
+                    pc = np.maximum(change, pass_change)
                     over = pc > dhat_used
                     if over.any():
                         band_rounds += 1
@@ -2241,9 +2248,7 @@ class ChainSolver:
                 break
             promoted += pass_promoted
             if track:
-                change = np.maximum(change, _speed_change(u_vel, u_det, model.half_length))
-                if u_pos is not u_vel:
-                    change = np.maximum(change, _speed_change(u_pos, u_det, model.half_length))
+                change = np.maximum(change, pass_change)
             u_end = u_vel if o.split_recovery else u_pos
             secs["contacts"] += time.perf_counter() - t2
             if it + 1 < o.harmonisation_iterations:
@@ -2263,8 +2268,7 @@ class ChainSolver:
             # just stopped at their former speed: on the landing strand, t = 85–90 ms, 10–15 % more candidates)
             self._dhat = np.maximum(1.5 * change, float(np.linalg.norm(o.gravity)) * dt)
             ob = rows.body[rows.obstacle]
-            spd_end = np.linalg.norm(u_end[ob, :3], axis=1) + model.half_length[ob] * np.linalg.norm(u_end[ob, 3:], axis=1)
-            self._dhat[ob] = np.maximum(self._dhat[ob], spd_end)
+            self._dhat[ob] = np.maximum(self._dhat[ob], _point_speed(u_end[ob], model.half_length[ob]))
         sweeps_max = sweeps_box[0]
         if o.warm_start and vel_impulses is not None:
             pr = np.nonzero(vel_impulses[0] > 0)[0]

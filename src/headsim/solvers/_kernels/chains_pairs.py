@@ -13,6 +13,21 @@ from numba import njit, prange
 
 
 @njit(cache=True, inline="always")
+def _pair_band(a, b, radius, speed, band_fraction, margin, dt):
+    """(row band, detection band) of pair (a, b), m: ½ band_fraction (r_a + r_b) + margin, and that plus
+    0.75 (speed_a + speed_b) Δt (a pair is kept when its gap is below the detection band)."""
+    band = 0.5 * band_fraction * (radius[a] + radius[b]) + margin
+    return band, band + 0.75 * (speed[a] + speed[b]) * dt
+
+
+@njit(cache=True, inline="always")
+def _twist_normal_speed(u, s, n0, n1, n2, r0, r1, r2):
+    """n·(v_s + ω_s × r) (m/s) of twist u[s] = (v, ω) at lever r (m) for the unit normal n."""
+    return (n0 * (u[s, 0] + u[s, 4] * r2 - u[s, 5] * r1) + n1 * (u[s, 1] + u[s, 5] * r0 - u[s, 3] * r2)
+            + n2 * (u[s, 2] + u[s, 3] * r1 - u[s, 4] * r0))
+
+
+@njit(cache=True, inline="always")
 def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
                    closing_factor, mark_tight, smooth):
     """Row of pair q (the geometry and tests of :func:`fibre_pair_rows`, which the fused detection pass
@@ -29,8 +44,8 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
     ra = radius[a]
     rb = radius[b]
     gap = dist - ra - rb
-    band = 0.5 * band_fraction * (ra + rb) + margin
-    if not gap < band + 0.75 * (speed[a] + speed[b]) * dt:
+    band, outer = _pair_band(a, b, radius, speed, band_fraction, margin, dt)
+    if not gap < outer:
         return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if dist > 1e-12:
         n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
@@ -128,13 +143,11 @@ def _row_normal_velocity_impl(body, partner, normal, lever, partner_lever, u, ou
         a = body[c]
         n = normal[c]
         r = lever[c]
-        s = (n[0] * (u[a, 0] + u[a, 4] * r[2] - u[a, 5] * r[1]) + n[1] * (u[a, 1] + u[a, 5] * r[0] - u[a, 3] * r[2])
-             + n[2] * (u[a, 2] + u[a, 3] * r[1] - u[a, 4] * r[0]))
+        s = _twist_normal_speed(u, a, n[0], n[1], n[2], r[0], r[1], r[2])
         b = partner[c]
         if b >= 0:
             r = partner_lever[c]
-            s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1]) + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
-                  + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
+            s -= _twist_normal_speed(u, b, n[0], n[1], n[2], r[0], r[1], r[2])
         out[c] = s
 
 
@@ -341,11 +354,8 @@ def _reserve_gap(a, b, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, dq0, half_
     else g⁰, g⁰ = g − n·(dq0_a(p_a) − dq0_b(p_b))."""
     if not half_gap or dq0.shape[0] == 0:
         return gap
-    da = (n0 * (dq0[a, 0] + dq0[a, 4] * la2 - dq0[a, 5] * la1) + n1 * (dq0[a, 1] + dq0[a, 5] * la0 - dq0[a, 3] * la2)
-          + n2 * (dq0[a, 2] + dq0[a, 3] * la1 - dq0[a, 4] * la0))
-    db = (n0 * (dq0[b, 0] + dq0[b, 4] * lb2 - dq0[b, 5] * lb1) + n1 * (dq0[b, 1] + dq0[b, 5] * lb0 - dq0[b, 3] * lb2)
-          + n2 * (dq0[b, 2] + dq0[b, 3] * lb1 - dq0[b, 4] * lb0))
-    g0 = gap - (da - db)
+    g0 = gap - (_twist_normal_speed(dq0, a, n0, n1, n2, la0, la1, la2)
+                - _twist_normal_speed(dq0, b, n0, n1, n2, lb0, lb1, lb2))
     if g0 > 0.0:
         return min(gap, 0.5 * g0)
     return g0
@@ -391,9 +401,9 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
     # counted per chunk and scattered in parallel (chunk c writes behind the chunks before it, for every key):
     # 0.1 s on the reference scene's 4.8 M pairs against 0.3 s for a bucket pass by a and a sort of each
     # bucket; the (a, b) keys are distinct, so the order is the same
-    n_ch = 64
-    step = (P + n_ch - 1) // n_ch
-    hist = np.empty((S, n_ch), np.int64)
+    n_chunks = 64
+    step = (P + n_chunks - 1) // n_chunks
+    hist = np.empty((S, n_chunks), np.int64)
     start = np.zeros(S + 1, np.int64)
     for rnd in range(2):
         col = 1 - rnd
@@ -401,7 +411,7 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
             src_p, src_r, dst_p, dst_r = pairs, params, tmp_p, tmp_r
         else:
             src_p, src_r, dst_p, dst_r = tmp_p, tmp_r, sp, spar
-        for c in prange(n_ch):
+        for c in prange(n_chunks):
             for z in range(S):
                 hist[z, c] = 0
             for i in range(c * step, min(P, (c + 1) * step)):
@@ -409,12 +419,12 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
         pos = 0
         for z in range(S):
             start[z] = pos
-            for c in range(n_ch):
+            for c in range(n_chunks):
                 t = hist[z, c]
                 hist[z, c] = pos
                 pos += t
         start[S] = pos
-        for c in prange(n_ch):
+        for c in prange(n_chunks):
             for i in range(c * step, min(P, (c + 1) * step)):
                 k = src_p[i, col]
                 q = hist[k, c]
@@ -427,8 +437,6 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
     # reserve written at the chunks' offsets
     tiers = allow.shape[0] > 0 and have_u
     nw = warm_keys.shape[0]
-    n_chunks = 64
-    step = (P + n_chunks - 1) // n_chunks
     keep = np.empty(P, np.int8)
     counts = np.zeros(n_chunks + 1, np.int64)
     rcounts = np.zeros(n_chunks + 1, np.int64)
@@ -442,10 +450,7 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
                     i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
                     mark_tight, smooth)
                 if ok and old_speed.shape[0] > 0:
-                    ra = radius[sp[i, 0]]
-                    rb = radius[sp[i, 1]]
-                    old_band = (0.5 * band_fraction * (ra + rb) + margin
-                                + 0.75 * (old_speed[sp[i, 0]] + old_speed[sp[i, 1]]) * dt)
+                    old_band = _pair_band(sp[i, 0], sp[i, 1], radius, old_speed, band_fraction, margin, dt)[1]
                     if gap < old_band - 1e-12:
                         ok = False
                 if ok:
