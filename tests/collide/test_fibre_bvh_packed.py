@@ -127,3 +127,28 @@ def test_bad_arguments():
         bvh.update(np.full_like(f.nodes, np.inf))
     with pytest.raises(ParameterError):
         bvh.self_contact_pairs("any")
+
+
+@pytest.mark.parametrize("scene", list(SCENES))
+@pytest.mark.parametrize("n_query", [1, 7, 120])
+def test_subset_contact_pairs_are_the_brute_force_pairs_of_the_query_segments(references, scene, n_query):
+    """subset_contact_pairs (the sweep the chain solver's widened band uses): exactly the brute-force pairs
+    with a query segment in them (a < b, each once also when both are queried), with its closest-point
+    parameters (the same float64 test up to the order of the segments' arguments)."""
+    from headsim.collide.fibre_bvh import subset_contact_pairs
+
+    f, pairs, params = references[scene]
+    rng = np.random.default_rng(n_query)
+    # the segments of the first contacts among the queries, so that every size has pairs to find
+    query = np.unique(np.concatenate([pairs[: max(1, n_query // 2), 0],
+                                      rng.choice(f.n_segments, n_query, replace=False)]))[:n_query]
+    got, got_params = subset_contact_pairs(f, query)
+    assert (got[:, 0] < got[:, 1]).all()
+    order = np.lexsort((got[:, 1], got[:, 0]))
+    got, got_params = got[order], got_params[order]
+    mine = np.isin(pairs[:, 0], query) | np.isin(pairs[:, 1], query)
+    assert mine.sum() >= 1
+    np.testing.assert_array_equal(got, pairs[mine])
+    np.testing.assert_allclose(got_params, params[mine], atol=1e-9)
+    empty, _ = subset_contact_pairs(f, np.zeros(0, np.int64))
+    assert empty.shape == (0, 2)

@@ -320,37 +320,56 @@ def test_reserve_pair_is_solved_again_when_the_lower_fibre_lands():
     assert abs(state.velocity[1, 1]) < 1e-3
 
 
-def test_relative_speed_allowance_bounds_every_close_pair():
-    """The bound behind ChainOptions.candidate_band = "relative" (``relative_speed_allowance``): for segments
-    whose centres are closer than the grid cell, any point of one moves relative to any point of the other
-    at most dev_a + dev_b + min(spread_a, spread_b). Checked on 400 random segments in a 2 cm box (a smooth
-    velocity field plus noise and spin), at random points of every close pair; and the bound is useful: for a
-    rigidly translating set (every segment at 0.6 m/s, no spin) dev and spread vanish."""
-    from headsim.solvers._kernels.chains_pairs import relative_speed_allowance
-
-    rng = np.random.default_rng(3)
-    S, cell = 400, 4e-3
-    x = rng.uniform(0.0, 0.02, (S, 3))
-    v = np.stack([30 * x[:, 1], -0.6 + 20 * x[:, 0], np.zeros(S)], 1) + rng.normal(0, 0.02, (S, 3))
-    w = rng.normal(0, 10, (S, 3))
-    half = np.full(S, 1.5e-3)
-    mass = rng.uniform(0.5, 2.0, S) * 1e-8
-    dev, spread = np.empty(S), np.empty(S)
-    relative_speed_allowance(x, v, w, half, mass, cell, dev, spread)
+def _segments_in_a_box(S, box, seed):
+    """S random 3 mm segments in a cube of edge ``box`` (m), with a smooth shear-and-fall velocity field plus
+    noise and random spins (rad/s), as a bending, falling strand has them."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0.0, box, (S, 3))
     d3 = rng.normal(size=(S, 3))
     d3 /= np.linalg.norm(d3, axis=1, keepdims=True)
-    a, b = np.nonzero(np.linalg.norm(x[:, None] - x[None], axis=2) < cell)
-    assert len(a) > 1000
-    worst = -np.inf
-    for _ in range(5):
-        ta, tb = rng.uniform(-1, 1, len(a)), rng.uniform(-1, 1, len(a))
-        pa = (ta * half[a])[:, None] * d3[a]
-        pb = (tb * half[b])[:, None] * d3[b]
-        rel = np.linalg.norm(v[a] + np.cross(w[a], pa) - v[b] - np.cross(w[b], pb), axis=1)
-        worst = max(worst, float((rel - (dev[a] + dev[b] + np.minimum(spread[a], spread[b]))).max()))
+    v = np.stack([30 * x[:, 1], -0.6 + 20 * x[:, 0], np.zeros(S)], 1) + rng.normal(0, 0.02, (S, 3))
+    w = rng.normal(0, 10, (S, 3))
+    return rng, x, d3, v, w, np.full(S, 1.5e-3), rng.uniform(0.5, 2.0, S) * 1e-8
+
+
+@pytest.mark.parametrize("grid", ["plain", "rebuilt", "coarsened"])
+def test_local_motion_bound_bounds_every_near_point_pair(grid, monkeypatch):
+    """The bound behind ChainOptions.candidate_band = "relative" (headsim.solvers.chain_band): for points p of
+    segment a and q of segment b with |p − q| ≤ ρ_a + ρ_b, |u_a(p) − u_b(q)| ≤ A_a + A_b. Checked on 400 random
+    segments in a 1 cm box, reaches from 50 µm to 2 mm, at the closest points of every pair within reach and at
+    random point pairs; "rebuilt": the grid built for a smaller reach than asked (it must rebuild wider),
+    "coarsened": a node cap that forces a coarser cell. And the bound is useful: for a rigidly
+    translating set (0.6 m/s, no spin) A vanishes."""
+    from headsim.collide._kernels_fibre_traverse import segment_segment_closest
+    from headsim.solvers import chain_band
+    from headsim.solvers.chain_band import LocalMotionBound
+
+    if grid == "coarsened":
+        monkeypatch.setattr(chain_band, "MAX_REFERENCE_NODES", 3_000)
+    rng, x, d3, v, w, half, mass = _segments_in_a_box(400, 0.01, 3)
+    reach = rng.uniform(50e-6, 2e-3, len(x))
+    bound = LocalMotionBound(x, d3, v, w, half, mass, 1e-4 if grid == "rebuilt" else reach.max())
+    A = bound.allowance(reach)
+    assert np.isfinite(A).all() and (bound.cell > 1e-3) == (grid == "coarsened")
+    a, b = np.triu_indices(len(x), 1)
+    pa, qa = x[a] - half[a, None] * d3[a], x[a] + half[a, None] * d3[a]
+    pb, qb = x[b] - half[b, None] * d3[b], x[b] + half[b, None] * d3[b]
+    close = np.array([segment_segment_closest(*pa[k], *qa[k], *pb[k], *qb[k]) for k in range(len(a))])
+    ta = [(2 * close[:, 0] - 1) * half[a]] + [rng.uniform(-1, 1, len(a)) * half[a] for _ in range(4)]
+    tb = [(2 * close[:, 1] - 1) * half[b]] + [rng.uniform(-1, 1, len(a)) * half[b] for _ in range(4)]
+    checked, worst = 0, -np.inf
+    for sa, sb in zip(ta, tb):
+        la, lb = sa[:, None] * d3[a], sb[:, None] * d3[b]
+        near = np.linalg.norm(x[a] + la - x[b] - lb, axis=1) <= reach[a] + reach[b]
+        rel = np.linalg.norm(v[a] + np.cross(w[a], la) - v[b] - np.cross(w[b], lb), axis=1)
+        checked += near.sum()
+        worst = max(worst, float((rel - A[a] - A[b])[near].max()))
+    assert checked > 15_000  # 19,971
     assert worst <= 1e-12
-    relative_speed_allowance(x, np.tile([0.0, -0.6, 0.0], (S, 1)), np.zeros((S, 3)), half, mass, cell, dev, spread)
-    assert dev.max() < 1e-12 and spread.max() < 1e-12
+    own = np.linalg.norm(v, axis=1) + half * np.linalg.norm(w, axis=1)
+    assert np.median(A) < np.median(own)  # measured 0.26 vs 0.55 m/s (plain grid)
+    still = LocalMotionBound(x, d3, np.tile([0.0, -0.6, 0.0], (len(x), 1)), np.zeros_like(w), half, mass, 2e-3)
+    assert still.allowance(reach).max() < 1e-12
 
 
 @pytest.mark.parametrize("forced_allowance", [False, True])

@@ -596,3 +596,39 @@ class PackedFibreBVH(FibreBVH):
         """(len(ids),) volumes of the packed float32 node boxes ``ids``, m³."""
         b = self.nbox[ids, :6].astype(np.float64)
         return np.prod(b[:, 3:] - b[:, :3], axis=1)
+
+
+def subset_contact_pairs(fibres: FibreSet, query) -> tuple[np.ndarray, np.ndarray]:
+    """The colliding segment pairs of ``fibres`` that involve at least one segment of ``query`` (indices or an
+    (S,) bool mask), as :meth:`FibreBVH.self_contact_pairs` with ``sort=False`` would report them (a < b,
+    params s, t ∈ [0, 1], same-fibre neighbours skipped), without a tree: the segments' boxes sorted along
+    the axis of the set's largest extent, and each query segment swept against them. For a few query
+    segments (a band widened for some segments only) this costs O(S log S + Q × the segments along its
+    slab) instead of a whole query."""
+    from headsim.collide._kernels_fibre_subset import subset_pairs
+
+    S = fibres.n_segments
+    q = np.asarray(query)
+    is_query = np.zeros(S, np.bool_)
+    is_query[q] = True
+    query_idx = np.flatnonzero(is_query).astype(np.int64)
+    if not len(query_idx):
+        return np.zeros((0, 2), np.int64), np.zeros((0, 2))
+    nodes, start, r = fibres.nodes, fibres.segment_start, fibres.radius
+    p0, p1 = nodes[start], nodes[start + 1]
+    axis = int(np.argmax(nodes.max(axis=0) - nodes.min(axis=0)))
+    perm = [axis] + [i for i in range(3) if i != axis]  # the sweep axis first
+    box = np.ascontiguousarray(np.concatenate([np.minimum(p0, p1)[:, perm] - r[:, None],
+                                               np.maximum(p0, p1)[:, perm] + r[:, None]], axis=1))
+    order = np.argsort(box[:, 0], kind="stable").astype(np.int64)
+    lo_sorted = np.ascontiguousarray(box[order, 0])
+    width = float((box[:, 3] - box[:, 0]).max())
+    counts = np.zeros(len(query_idx), np.int64)
+    args = (nodes, np.ascontiguousarray(start), np.ascontiguousarray(fibres.segment_fibre), r, box, order, lo_sorted,
+            width, query_idx, is_query, counts)
+    subset_pairs(*args, np.zeros((0, 2), np.int64), np.zeros((0, 2)), False)
+    total = int(counts.sum())
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    pairs, params = np.empty((total, 2), np.int64), np.empty((total, 2))
+    subset_pairs(*args[:-1], offsets, pairs, params, True)
+    return pairs, params

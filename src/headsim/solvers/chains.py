@@ -91,9 +91,10 @@ contact set is still the band's; a wrong allowance costs a repeated solve, not a
 start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
 
 Relative band (``candidate_band = "relative"``, default): the pairs the BVH reports at all are those within
-the band of each segment's speed *relative to a smooth reference velocity field* plus its allowance δ̂, not
-of its absolute speed (a strand falling at 0.6 m/s: 9 M → 1.2 M candidate and reserve pairs); where a pass's
-velocity changes exceed δ̂ the band is widened to them and the pairs it adds are checked (see the option).
+the band of each segment's speed *relative to its neighbours* (a bound through a smooth reference velocity
+field, :mod:`headsim.solvers.chain_band`) plus its allowance δ̂, not of its absolute speed (a strand falling
+at 0.6 m/s: 10.5 M → 0.55 M pairs); where a pass's velocity changes exceed δ̂ the band is widened to them and
+the pairs it adds are checked (see the option).
 
 Friction (§8.3): per contact a frame t₁ = own segment axis (root → tip) projected on the tangent plane,
 t₂ = n × t₁; the admissible tangential impulses are the polygon λ_α·conv{μ_β d_β}
@@ -120,6 +121,7 @@ from headsim.errors import DivergenceError, ParameterError
 from headsim.solvers._kernels import chains as K
 from headsim.solvers._kernels import chains_coupled as KC
 from headsim.solvers._kernels import chains_pairs as KP
+from headsim.solvers.chain_band import LocalMotionBound
 
 __all__ = [
     "FrictionLaw",
@@ -153,9 +155,10 @@ WARM_START_FRACTION = 0.5
 # would close them within the step. 1 is the speculative condition itself at u⁻; on the 355 × 100 helical
 # scene at t = 32 ms it keeps 14 % of the 753 k pairs, all but 0.1 % of the rows that end with an impulse.
 CLOSING_MARGIN_FACTOR = 1.0
-# candidate_band="relative": largest reference-velocity grid (cells; 8 floats each, 320 MB); fibres spread wider than
-# this at the cell size the band needs keep the absolute band for the step
-MAX_REFERENCE_GRID_CELLS = 10_000_000
+# candidate_band="relative": a band widened for at most this fraction of the segments is detected by sweeping
+# those segments against the others (headsim.collide.fibre_bvh.subset_contact_pairs) instead of a whole tree
+# query (ringlet start: a few hundred segments per widening, ≈ 10 ms instead of 0.3 s)
+SUBSET_QUERY_FRACTION = 0.05
 
 
 # ------------------------------------------------------------------------------------------------
@@ -816,21 +819,28 @@ class ChainOptions:
     candidate_band : coupled mode, how far apart a fibre pair may be and still be a candidate (the pairs the
         solve may turn into rows). ``"absolute"``: within 0.75 (s_a + s_b) Δt of the row band, s the segments'
         own speeds |v| + h|ω| (it grows with the fall speed although neighbouring fibres move together).
-        ``"relative"`` (default since issue 10's thirteenth session): s_a = (dev_a + ½ spread_a + 1.5 δ̂_a)/0.75
-        with dev and spread the bound of the segment's speed relative to a smooth reference velocity field
-        (:func:`headsim.solvers._kernels.chains_pairs.relative_speed_allowance`) and δ̂_a an allowance for the
+        ``"relative"`` (default since issue 10's thirteenth session): s_a = (A_a + 1.5 δ̂_a)/0.75 with A_a the
+        local-motion bound of :class:`headsim.solvers.chain_band.LocalMotionBound` (|u_a(p) − u_b(q)| ≤ A_a + A_b
+        for points within the absolute band's reach ρ = r(1 + ½ band) + ½ margin + (s + 1.5 δ̂)Δt of each other;
+        pairs farther apart cannot close even at their own speeds) and δ̂_a an allowance for the
         velocity change the step's solves may give it (1.5 × the change measured in the previous step, at
         least |g|Δt; where it has an obstacle row, at least its speed at the end of the step). After each
         harmonisation pass's
         solves every segment's measured change δ (against the detection's u⁻) is checked against δ̂: where it
         is larger, the pairs of the band widened to 1.25 δ are detected again at the detection's state (only
-        those the first band missed; on a coarser reference grid where the wider band needs one), the ones
+        those the first band missed, and only around the widened segments when they are few:
+        :func:`headsim.collide.fibre_bvh.subset_contact_pairs`), the ones
         the solves' twists close (or that close at u⁻) join the candidates and the pass is solved again
-        (:meth:`ChainSolver._widened_band`; 3 widenings per step at most). Only where that is not possible
-        (a reference grid over :data:`MAX_REFERENCE_GRID_CELLS`, or a 4th widening) is the step redone with
-        the absolute band. So every pair that the final velocities close within a relative-band step was a
+        (:meth:`ChainSolver._widened_band`; 3 widenings per step at most). Only after a 4th is the step redone
+        with the absolute band. So every pair that the final velocities close within a relative-band step was a
         candidate (the bound, not a heuristic). The absolute band is used for a step whose relative band
-        would be wider (the ringlet start, ``--geometry former``: velocities incoherent across the grid cells).
+        would be wider in sum (the first step of the ringlet start, ``--geometry former``).
+        Before issue 10's fourteenth session the reference field's bound held for pairs whose centres lie
+        within one grid cell, the cell had to cover the largest candidate distance at the fastest segment's
+        speed (8.9 mm at the ringlet start) and the bound included h|ω| in full: the ringlet start kept the
+        absolute band (4.3 M pairs at t = 6 ms; now 1.8 M, most of them around the ≈ 2,000 segments near the
+        tips moving at ≈ 2 m/s), and the falling strand of the derived geometry at t = 60 ms had 1.2 M reserve
+        pairs (now 0.35 M; detection 0.40 → 0.29 s per step, the same states).
         Measured (``benchmarks/bench_drape.py`` scene, 355 × 100, from a saved t = 60 ms state of the derived
         geometry, 30 steps to 90 ms, with the candidate reserve and 2 contact domains, machine otherwise idle):
         absolute 177 s, relative 156 s; 61–82 ms (falling, 0.6 m/s) 1.3–2.5 s per step against 2.8–4.6 s
@@ -1336,7 +1346,7 @@ class ChainSolver:
         self._reserve_moved = 0  # candidate_reserve: reserve pairs this step moved to the candidates
         self._band_extensions = 0  # candidate_band="relative": widened detections of the last step
         self._widen_seconds = 0.0  # candidate_band="relative": their time, s
-        self._rel_grid = None  # candidate_band="relative": (dev + ½ spread, base band, grid cell) of this step
+        self._rel_grid = None  # candidate_band="relative": the LocalMotionBound of this step's detection state
 
     @staticmethod
     def _writable(a):
@@ -1430,7 +1440,7 @@ class ChainSolver:
         self._reserve = []
         if o.fibre_contacts and model.n_segments > 1:
             from headsim.collide import FibreBVH, FibreSet
-            from headsim.collide.fibre_bvh import PackedFibreBVH
+            from headsim.collide.fibre_bvh import PackedFibreBVH, subset_contact_pairs
 
             F = model.n_fibres
             so = model.segment_offsets
@@ -1448,13 +1458,20 @@ class ChainSolver:
             # the 35,500-segment reference scene (0.28 s vs 1.21 s), but slower on small scenes (320
             # segments: 18.6 ms vs 7.7 ms per step, its refit and thread pool dominate), which keep the AS
             # tree, queried on one thread
-            if model.n_segments >= o.parallel_threshold:
-                self._bvh = PackedFibreBVH(fs)
+            grown = None if old_speed is None else np.flatnonzero(spd > old_speed)
+            if grown is not None and len(grown) <= SUBSET_QUERY_FRACTION * model.n_segments:
+                # a band widened for a few segments: only the pairs that involve them can be new (the kernel drops
+                # the others, as it does the pairs of the first band), without a tree
+                pairs, params = subset_contact_pairs(fs, grown)
             else:
-                self._bvh = FibreBVH(fs, "aabb", "spatial", threads=1)
-            # unsorted pairs: one fused pass orders them by (a, b), drops the joint copies and writes the rows
-            # (KP.detect_rows; the same rows in the same order as the sort → duplicate filter → rows kernels)
-            pairs, params = self._bvh.self_contact_pairs(sort=False)
+                if model.n_segments >= o.parallel_threshold:
+                    self._bvh = PackedFibreBVH(fs)
+                else:
+                    self._bvh = FibreBVH(fs, "aabb", "spatial", threads=1)
+                # unsorted pairs: one fused pass orders them by (a, b), drops the joint copies and writes the
+                # rows (KP.detect_rows; the same rows in the same order as the sort → duplicate filter → rows
+                # kernels)
+                pairs, params = self._bvh.self_contact_pairs(sort=False)
             if len(pairs):
                 P = len(pairs)
                 S = model.n_segments
@@ -1947,64 +1964,38 @@ class ChainSolver:
             raise ParameterError(f"dt must be > 0 s, got {dt}")
         return self._step(model, state, dt, obstacles, 0)
 
-    def _relative_pair_speed(self, model, x_mid, u_minus, dt, dhat):
+    def _relative_pair_speed(self, model, x_mid, R_mid, u_minus, dt, dhat):
         """(S,) m/s allowance speed of every segment for the fibre pairs' candidate band
         (``ChainOptions.candidate_band = "relative"``) with the allowance ``dhat`` (S,) m/s, or None where the
         absolute band is narrower."""
-        out = self._relative_speeds(model, x_mid, u_minus, dt, dhat)
-        if out is None or out[0].sum() >= self._speed.sum():
-            return None
-        self._rel_grid = out[1]
-        return out[0]
-
-    def _relative_speeds(self, model, x_mid, u_minus, dt, dhat, cell=None):
-        """(a (S,) m/s, (dev + ½ spread, base band, grid cell)) of the relative band for the allowance ``dhat``
-        (S,) m/s: a = (dev + ½ spread + 1.5 δ̂)/0.75 (see ``ChainOptions.candidate_band``), or None where the
-        reference grid would exceed :data:`MAX_REFERENCE_GRID_CELLS`. The grid cell (at least ``cell``) covers
-        the largest centre distance of a candidate pair, so that the field's spread bound holds."""
         o = self.options
-        S = model.n_segments
-        h, r = model.half_length, model.radius
-        x = np.ascontiguousarray(x_mid)
-        v = np.ascontiguousarray(u_minus[:, :3])
-        w = np.ascontiguousarray(u_minus[:, 3:])
-        hw, mw = self._writable(h), self._writable(model.mass)
-        extent = x.max(axis=0) - x.min(axis=0)
-        base = 2.0 * h.max() + 2.0 * r.max() * (1.0 + o.contact_band) + o.speculative_speed * dt
-        cell = max(base + 2.0 * dt * float(self._speed.max()), 0.0 if cell is None else cell)
-        dev, spread = np.empty(S), np.empty(S)
-        for _ in range(4):
-            if np.prod(extent / cell + 6.0) > MAX_REFERENCE_GRID_CELLS:  # fibres spread far apart: no grid
-                return None
-            KP.relative_speed_allowance(x, v, w, hw, mw, float(cell), dev, spread)
-            a = (dev + 0.5 * spread + 1.5 * dhat) / 0.75
-            need = base + 1.5 * dt * float(a.max())
-            if need <= cell:
-                return a, (dev + 0.5 * spread, base, cell)
-            cell = 1.25 * need
-        return None
+        r = model.radius
+        # the absolute band's reach of every segment (its detection radius at its own speed plus 1.5 δ̂ Δt): pairs
+        # farther apart cannot close within the step (chain_band module docstring)
+        self._rel_base = r * (1.0 + 0.5 * o.contact_band) + 0.5 * o.speculative_speed * dt
+        reach = self._rel_base + dt * (self._speed + 1.5 * dhat)
+        self._rel_grid = LocalMotionBound(x_mid, R_mid[:, :, 2], u_minus[:, :3], u_minus[:, 3:], model.half_length,
+                                          model.mass, float(reach.max()))
+        a = self._relative_speeds(dt, dhat)
+        return None if a.sum() >= self._speed.sum() else a
+
+    def _relative_speeds(self, dt, dhat):
+        """(S,) m/s: a = (A + 1.5 δ̂)/0.75 of the relative band for the allowance ``dhat`` (S,) m/s, A the local-motion
+        bound of this step's detection state (:class:`headsim.solvers.chain_band.LocalMotionBound`) at the reach
+        of the absolute band (see ``ChainOptions.candidate_band``)."""
+        reach = self._rel_base + dt * (self._speed + 1.5 * dhat)
+        return (self._rel_grid.allowance(reach) + 1.5 * dhat) / 0.75
 
     def _widened_band(self, model, rows, dhat, checks, x_det, R_det, u_det, dq0, dq, endvel, dt, row_vn):
         """candidate_band="relative": a pass's twists changed some segments by more than the allowance δ̂ the
         band was built with. Detects again, at the detection's state, with the band of the allowance ``dhat``
-        (S,) m/s (≥ the changes), keeping only the fibre pairs the first band did not reach (on a coarser
-        reference grid where the wider band needs it; None where that grid would be too large: the step is then
-        redone with the absolute band). Of those pairs,
+        (S,) m/s (≥ the changes), keeping only the fibre pairs the first band did not reach. Of those pairs,
         the ones within the row band or without positive slack are appended as rows and candidates; the others
         join the reserve, where the ones the pass's twists close are appended too. Returns
-        (rows, appended rows, their gaps at t_i) when rows were appended, the input ``rows`` alone when none
-        were, or None."""
-        rel, base, cell = self._rel_grid
+        (rows, appended rows, their gaps at t_i) when rows were appended, else the input ``rows``."""
         old_speed = self._pair_speed
-        a = (rel + 1.5 * dhat) / 0.75
-        if base + 1.5 * dt * float(a.max()) > cell:
-            # the wider band needs a coarser reference grid: its bound holds for pairs within its cell, and the
-            # band is kept at least the first one's (so that the pairs found before are the ones it excludes)
-            out = self._relative_speeds(model, x_det, u_det, dt, dhat, cell=1.25 * (base + 1.5 * dt * float(a.max())))
-            if out is None:
-                return None
-            a = np.maximum(out[0], old_speed)
-            self._rel_grid = out[1]
+        # kept at least the first band (so that the pairs found before are the ones it excludes)
+        a = np.maximum(self._relative_speeds(dt, dhat), old_speed)
         saved = (self._reserve, self._pair_speed, self._allow, self._bvh)
         t0 = time.perf_counter()
         try:
@@ -2122,7 +2113,7 @@ class ChainSolver:
                 self._pair_speed = None
                 if (o.candidate_band == "relative" and o.contact_coupling == "coupled" and S > 1
                         and not force_absolute):
-                    self._pair_speed = self._relative_pair_speed(model, x_mid, u_minus, dt, dhat_used)
+                    self._pair_speed = self._relative_pair_speed(model, x_mid, R_mid, u_minus, dt, dhat_used)
                 # candidate_reserve: the allowance of the split into candidates and reserve pairs (see _detect)
                 reserve_on = o.candidate_reserve and o.contact_coupling == "coupled" and S > 1
                 self._allow = dhat_used if reserve_on else None
@@ -2225,10 +2216,9 @@ class ChainSolver:
                         dhat_new = np.where(over, 1.25 * pc, dhat_used)
                         wid = self._widened_band(model, rows, dhat_new, checks, x_mid0, R_det, u_det, dq0, dq,
                                                  endvel, dt, row_vn)
-                        if wid is not None:
-                            dhat_used = dhat_new
-                            if wid is not rows:
-                                extended = wid
+                        dhat_used = dhat_new
+                        if wid is not rows:
+                            extended = wid
                 if extended is not None:
                     rows, added, added_g0 = extended
                     bodies = rows.body
