@@ -80,7 +80,16 @@ class LocalMotionBound:
         KB.gather_reference(x, d3, v, w, half, mass, cell, self._lo, gather, M, MV)
         V, filled = MV, np.empty(M.shape, np.bool_)
         KB.node_values(M, MV, V, filled)
-        if not filled.all():  # every empty node takes the value of its nearest filled node (chessboard metric)
+        # empty nodes: two layers of their filled neighbours' means, which reach every node of the 3 × 3 × 3
+        # cell blocks around the samples' cells (a nearest value alone steps between neighbours: 35 % more
+        # reserve pairs on the falling strand); where a reach exceeds a cell, the nodes beyond take their nearest
+        # filled node's value (else 0 there would bound a coherently moving fast segment by its own speed).
+        # That fill costs 36 ms per step on the falling strand's 720 k nodes, which do not need it.
+        V2, f2 = np.empty_like(V), np.empty_like(filled)
+        for _ in range(2):
+            KB.dilate_values(V, filled, V2, f2)
+            V, V2, filled, f2 = V2, V, f2, filled
+        if reach + DEVIATION_SPACING * cell > cell and not filled.all():
             idx = ndimage.distance_transform_cdt(~filled, metric="chessboard", return_distances=False,
                                                  return_indices=True)
             V = V[idx[0], idx[1], idx[2]]

@@ -3,7 +3,8 @@
 
 A reference velocity field F over a regular grid of cell size c (m): the segments' point velocities
 v + ω × (t d₃) (m/s, eq. 8.7) sampled along each segment are gathered on the grid nodes with trilinear
-weights (mass-weighted means), every empty node takes the value of its nearest filled one (done by
+weights (mass-weighted means), empty nodes next to filled ones take the mean of those (two layers; the
+nodes beyond keep 0 or take their nearest filled node's value, see
 :class:`~headsim.solvers.chain_band.LocalMotionBound`), and F is the trilinear interpolation of the node
 values everywhere. Within one cell ∂F/∂x is a convex combination of the cell's four x-edge differences / c
 (likewise y, z), so |F(p) − F(q)| ≤ L_cell |p − q|
@@ -74,6 +75,37 @@ def node_values(M, MV, V, filled):
                 filled[i, j, k] = f
                 for q in range(3):
                     V[i, j, k, q] = MV[i, j, k, q] / M[i, j, k] if f else 0.0
+
+
+@njit(cache=True, parallel=True)
+def dilate_values(V, filled, V_out, filled_out):
+    """One layer of filling: an empty node with filled neighbours (26-neighbourhood) gets their mean."""
+    nx, ny, nz = filled.shape
+    for i in prange(nx):
+        for j in range(ny):
+            for k in range(nz):
+                for q in range(3):
+                    V_out[i, j, k, q] = V[i, j, k, q]
+                filled_out[i, j, k] = filled[i, j, k]
+                if filled[i, j, k]:
+                    continue
+                c = 0
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                for ii in range(max(i - 1, 0), min(i + 2, nx)):
+                    for jj in range(max(j - 1, 0), min(j + 2, ny)):
+                        for kk in range(max(k - 1, 0), min(k + 2, nz)):
+                            if filled[ii, jj, kk]:
+                                c += 1
+                                a0 += V[ii, jj, kk, 0]
+                                a1 += V[ii, jj, kk, 1]
+                                a2 += V[ii, jj, kk, 2]
+                if c:
+                    V_out[i, j, k, 0] = a0 / c
+                    V_out[i, j, k, 1] = a1 / c
+                    V_out[i, j, k, 2] = a2 / c
+                    filled_out[i, j, k] = True
 
 
 @njit(cache=True, inline="always")
