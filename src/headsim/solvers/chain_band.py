@@ -20,8 +20,14 @@ into a part within ρ_a of p and a part within ρ_b of q, so
 The solver takes ρ_s = the absolute band's reach of segment s (its radius, row band and margin plus
 (|v| + h|ω| + 1.5 δ̂)Δt): a pair farther apart than ρ_a + ρ_b cannot close within the step even at the
 segments' own speeds, and every nearer one closes at most at A_a + A_b. On the 355 × 100 ringlet start at
-t = 6 ms (1 mm cell): e 0.007 m/s, L 28 1/s (medians) against own speeds of 0.08 m/s, so 0.84 M pairs
-instead of the absolute band's 4.3 M.
+t = 6 ms (1 mm cell): e 0.007 m/s, L 28 1/s (medians) against own speeds of 0.12 m/s; 1.8 M detected pairs
+instead of the absolute band's 4.3 M, ≈ 1 M of them around the ≈ 2,000 segments near the tips that move at
+≈ 2 m/s against their neighbours (there the bound is no better than their own speed). The falling strand of
+the derived geometry at t = 60 ms (0.6 m/s): 0.36 M reserve pairs instead of the former bound's 1.2 M.
+
+A segment whose reach ρ exceeds a cell sees F on nodes far from any mass; where the Lipschitz path term
+exceeds the spread of F's node values within its reach, the spread bounds |F(p) − F(m)| instead (both are
+valid: F is a convex combination of those values).
 """
 
 from __future__ import annotations
@@ -34,11 +40,13 @@ from headsim.solvers._kernels import chains_band as KB
 __all__ = ["LocalMotionBound", "REFERENCE_CELL"]
 
 # grid cell of the reference field, m (a third of the reference scene's 3 mm segments: finer cells follow the
-# strand's bending better but see more of the fibres' own scatter; 0.5 / 1 / 2 mm gave 0.97 / 1.2 / 3.2 M
-# pairs at the ringlet start with 7 samples per segment)
+# strand's bending better but see more of the fibres' own scatter and cost more nodes; measured below)
 REFERENCE_CELL = 1e-3
-# largest grid (nodes; ≈ 80 bytes each): a strand spread wider gets a coarser cell
-MAX_REFERENCE_NODES = 2_000_000
+# largest grid (nodes): a strand spread wider gets a coarser cell (in steps of 1.25×). The bound's passes over
+# the grid then cost more than a finer cell saves in pairs: falling strand (derived geometry, t = 60 ms, 112 ×
+# 57 × 78 mm) 1 / 1.4 / 2 / 3 mm cells: detection 0.39 / 0.30 / 0.27 / 0.27 s per step for 364 / 362 / 372 / 392 k
+# reserve pairs; ringlet start (52 k nodes at 1 mm) 0.7 / 1 / 1.4 / 2 / 3 mm: 0.67 / 0.56 / 0.58 / 0.72 / 0.79 s
+MAX_REFERENCE_NODES = 200_000
 # sample spacing along a segment / cell: the gathering, and the deviation bound (whose between-sample term
 # δ(|ω| + L)/2 shrinks with it)
 GATHER_SPACING = 0.5
@@ -69,7 +77,7 @@ class LocalMotionBound:
             dims = (np.floor((hi - lo) / cell).astype(np.int64) + 2 * pad + 2)
             if np.prod(dims.astype(float)) <= MAX_REFERENCE_NODES:
                 break
-            cell *= 1.5
+            cell *= 1.25
         self.cell = cell
         self.reach = reach
         self._lo = lo - pad * cell
@@ -83,8 +91,8 @@ class LocalMotionBound:
         # empty nodes: two layers of their filled neighbours' means, which reach every node of the 3 × 3 × 3
         # cell blocks around the samples' cells (a nearest value alone steps between neighbours: 35 % more
         # reserve pairs on the falling strand); where a reach exceeds a cell, the nodes beyond take their nearest
-        # filled node's value (else 0 there would bound a coherently moving fast segment by its own speed).
-        # That fill costs 36 ms per step on the falling strand's 720 k nodes, which do not need it.
+        # filled node's value (else 0 there would bound a coherently moving fast segment by its own speed; the
+        # fill took 36 ms on a 720 k-node grid of the falling strand, which does not need it).
         V2, f2 = np.empty_like(V), np.empty_like(filled)
         for _ in range(2):
             KB.dilate_values(V, filled, V2, f2)
@@ -113,8 +121,8 @@ class LocalMotionBound:
 
     def allowance(self, reach) -> np.ndarray:
         """(S,) m/s: A_s = e_s + min(L_s(ρ_s) ρ_s, osc_s(ρ_s)), so |u_a(p) − u_b(q)| ≤ A_a + A_b for
-        |p − q| ≤ ρ_a + ρ_b (osc: the spread of F's node values within ρ_s of the segment, taken where
-        L ρ > e + ρ/Δt... i.e. where it may be the smaller one)."""
+        |p − q| ≤ ρ_a + ρ_b (osc: the spread of F's node values within ρ_s of the segment, computed only where
+        L ρ exceeds :data:`OSCILLATION_CHECK` × (e + 1 mm/s), i.e. where it may be the smaller term)."""
         reach = np.ascontiguousarray(reach, np.float64)
         change = self.lipschitz(reach) * reach
         # near a segment much faster than its surroundings F changes by its speed within a cell: the path bound
