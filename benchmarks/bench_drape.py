@@ -190,7 +190,7 @@ with the same venv, alternating with the new tree in one session):
   captured landing solve (t = 86 ms) took 2.24–2.72 s with 1 contact domain, 1.59–1.65 s with 2, 1.78 s with 4.
 
 Issue 10, fourteenth session ("old" = commit 60ed2ca's source tree from a git worktree, same venv, alternating
-runs in one session, machine otherwise idle; this machine ran ≈ 15 % slower than in the thirteenth session, the
+runs in one session, machine otherwise idle; the machine ran ≈ 10 % faster than in the thirteenth session: the
 old tree's ringlet start took 1.69–1.80 s against 1.91–1.95 s then):
 
 * The relative band's bound is now local (:class:`headsim.solvers.chain_band.LocalMotionBound`: each segment's
@@ -199,18 +199,21 @@ old tree's ringlet start took 1.69–1.80 s against 1.91–1.95 s then):
   (:func:`headsim.collide.fibre_bvh.subset_contact_pairs`: 5–80 ms against 0.3–0.5 s for a whole query), the
   half step has no temporaries (integration 0.11 → 0.03 s per step), and a reserve chunk with one pair a solve
   closes hands all its suspects back (one re-solve instead of up to five).
-* Ringlet start (command above): old 1.69 / 1.80 s per step, new **1.52 / 1.56 s** (detection 0.83–0.91 →
-  0.68–0.70 s; 4.3 M → 1.8 M detected pairs at t = 6 ms, of which ≈ 1 M belong to the ≈ 2,000 segments near the
-  tips moving at ≈ 2 m/s; the same contacts, rows, penetration, energy and joint gap to the printed digits).
+* Ringlet start (command above): old 1.69 / 1.80 / 1.77 s per step, new 1.52 / 1.56 s, with the reference grid
+  capped at 200 k nodes (the final state of the session) **1.39 s** (detection 0.83–0.96 → 0.66–0.70 s;
+  4.3 M → 1.8 M detected pairs at t = 6 ms, of which ≈ 1 M belong to the ≈ 2,000 segments near the tips moving
+  at ≈ 2 m/s; the same contacts, rows, penetration, energy and joint gap to the printed digits).
 * Fall and landing (derived geometry, 30 steps from a saved t = 60 ms state; ``--settle 58 --steps 30
-  --coupled-only`` runs the same steps after settling): old 146.5 s, new **109.2 s**. Per step: 61–76 ms
-  1.10–1.23 → 0.94–1.12 s (1.2–1.3 M → 0.35–0.48 M reserve pairs, the same states), 77–82 ms 1.6–2.4 →
-  1.2–1.4 s, 83 ms 8.5 → 5.1 s, 84 ms 29.8 → 12.7 s (300 k reserve pairs closed: 1 re-solve instead of 5),
-  85–90 ms 11–15 → 8.5–15 s (contacts 6–12 s: 190–330 k rows and 1.7–2.1 M candidates, whose allowances δ̂ of
-  0.7–0.9 m/s belong to the 10 % of the segments sliding off the sphere; 1.0× instead of 1.5× the last change
-  as the allowance changed the candidates by < 10 % and the time not at all).
-* Goal 0.2 s: still ≈ 5× off for the falling strand (≈ 1 s per step: 3 solves ≈ 0.5 s, detection 0.35–0.4 s,
-  joints 0.08 s) and ≈ 8× for the ringlet start.
+  --coupled-only`` runs the same steps after settling): old 146.5 / 146.6 s, new 109.2 s, with the grid cap
+  **102.7 s**. Per step (old → final): 61–76 ms 1.10–1.23 → 0.89–1.04 s (1.2–1.3 M → 0.35–0.48 M reserve
+  pairs, the same states), 77–82 ms 1.6–2.4 → 1.1–1.3 s, 83 ms 8.5 → 4.8 s, 84 ms 29.8 → 12.0 s (300 k
+  reserve pairs closed: 1 re-solve instead of 5), 85–90 ms 11–15 → 8.1–15 s (contacts 6–12 s: 190–330 k
+  rows and 1.7–2.1 M candidates, whose allowances δ̂ of 0.7–0.9 m/s belong to the 10 % of the segments
+  sliding off the sphere; 1.0× instead of 1.5× the last change as the allowance changed the candidates by
+  < 10 % and the time not at all).
+* Goal 0.2 s: still ≈ 4.5× off for the falling strand (≈ 0.9 s per step: 3 solves of 30 sweeps 0.36 s and
+  0.14 s of their set-ups and reserve checks, detection 0.28 s, joints 0.07 s, integration 0.03 s) and ≈ 7×
+  for the ringlet start.
 """
 
 from __future__ import annotations

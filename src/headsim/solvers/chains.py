@@ -86,9 +86,9 @@ reserve instead: only its position and σ. After every solve the reserve is chec
 kernel's own screened test — σ ≤ B_A + B_B with B = |Δv| + (h + r)|Δω| + c·|mid-state change|/Δt per body —
 and the suspects by the exact promotion rule at the solve's twists; where a solve would close one, the
 suspects become candidates: the last harmonisation pass is then solved again (after 3 such rounds in a step
-every suspect is taken untested), an earlier pass hands them to the next one (it only predicts that pass's mid state). So the
-contact set is still the band's; a wrong allowance costs a repeated solve, not a missed contact. Ringlet
-start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
+every suspect is taken untested), an earlier pass hands them to the next one (it only predicts that pass's
+mid state). So the contact set is still the band's; a wrong allowance costs a repeated solve, not a missed
+contact. Ringlet start (355 × 100): 2.3 M → 0.22 M candidates, no reserve pair closed.
 
 Relative band (``candidate_band = "relative"``, default): the pairs the BVH reports at all are those within
 the band of each segment's speed *relative to its neighbours* (a bound through a smooth reference velocity
@@ -1981,9 +1981,9 @@ class ChainSolver:
         return None if a.sum() >= self._speed.sum() else a
 
     def _relative_speeds(self, dt, dhat):
-        """(S,) m/s: a = (A + 1.5 δ̂)/0.75 of the relative band for the allowance ``dhat`` (S,) m/s, A the local-motion
-        bound of this step's detection state (:class:`headsim.solvers.chain_band.LocalMotionBound`) at the reach
-        of the absolute band (see ``ChainOptions.candidate_band``)."""
+        """(S,) m/s: a = (A + 1.5 δ̂)/0.75 of the relative band for the allowance ``dhat`` (S,) m/s, A the
+        local-motion bound of this step's detection state (:class:`headsim.solvers.chain_band.LocalMotionBound`)
+        at the reach of the absolute band (see ``ChainOptions.candidate_band``)."""
         reach = self._rel_base + dt * (self._speed + 1.5 * dhat)
         return (self._rel_grid.allowance(reach) + 1.5 * dhat) / 0.75
 
