@@ -95,13 +95,9 @@ def world_inverse_inertia(R, inertia):
 
 
 @njit(cache=True, inline="always")
-def _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out):
-    """Body s of :func:`half_step`, without temporaries (scalars only: an allocation per body made the
-    parallel loop ≈ 8× slower). R_out may be R."""
-    for c in range(3):
-        x_out[s, c] = x[s, c] + h * v[s, c]
-    # E = exp(h w̃) (Rodrigues as :func:`rodrigues`)
-    p0, p1, p2 = h * w[s, 0], h * w[s, 1], h * w[s, 2]
+def _rodrigues_entries(p0, p1, p2):
+    """The entries (e00, e01, e02, e10, e11, e12, e20, e21, e22) of exp(φ̃) for φ = (p0, p1, p2) (Rodrigues
+    as :func:`rodrigues`: E = I + a k̃ + b k̃², k̃² = k kᵀ − |k|² I)."""
     th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
     if th < 1e-12:
         a, b2 = 1.0, 0.5
@@ -110,15 +106,19 @@ def _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out):
         a, b2 = np.sin(th), 1.0 - np.cos(th)
         k0, k1, k2 = p0 / th, p1 / th, p2 / th
     kk = k0 * k0 + k1 * k1 + k2 * k2
-    e00 = 1.0 + b2 * (k0 * k0 - kk)
-    e11 = 1.0 + b2 * (k1 * k1 - kk)
-    e22 = 1.0 + b2 * (k2 * k2 - kk)
-    e01 = -a * k2 + b2 * k0 * k1
-    e10 = a * k2 + b2 * k0 * k1
-    e02 = a * k1 + b2 * k0 * k2
-    e20 = -a * k1 + b2 * k0 * k2
-    e12 = -a * k0 + b2 * k1 * k2
-    e21 = a * k0 + b2 * k1 * k2
+    return (1.0 + b2 * (k0 * k0 - kk), -a * k2 + b2 * k0 * k1, a * k1 + b2 * k0 * k2,
+            a * k2 + b2 * k0 * k1, 1.0 + b2 * (k1 * k1 - kk), -a * k0 + b2 * k1 * k2,
+            -a * k1 + b2 * k0 * k2, a * k0 + b2 * k1 * k2, 1.0 + b2 * (k2 * k2 - kk))
+
+
+@njit(cache=True, inline="always")
+def _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out):
+    """Body s of :func:`half_step`, without temporaries (scalars only: an allocation per body made the
+    parallel loop ≈ 8× slower). R_out may be R."""
+    for c in range(3):
+        x_out[s, c] = x[s, c] + h * v[s, c]
+    # E = exp(h w̃)
+    e00, e01, e02, e10, e11, e12, e20, e21, e22 = _rodrigues_entries(h * w[s, 0], h * w[s, 1], h * w[s, 2])
     # torque-free rotation keeps the world angular momentum L = I_w ω: ω ← I_w(R_new)⁻¹ I_w(R) ω
     # (with the gyroscopic term neglected a frozen ω would pump energy from the tiny axial inertia
     # of a thin segment into its transverse one; this update only ever lowers that energy)
@@ -210,24 +210,8 @@ def _joint_impulses_into(b, s, n, j0, P, R, half, fl, tq):
 @njit(cache=True, inline="always")
 def _exp_times_into(p0, p1, p2, Rs, E, out):
     """out (3, 3) ← exp(φ̃) Rs (Rodrigues as :func:`rodrigues`); E (3, 3) is a work matrix."""
-    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    if th < 1e-12:
-        a, b2 = 1.0, 0.5
-        k0, k1, k2 = p0, p1, p2
-    else:
-        a, b2 = np.sin(th), 1.0 - np.cos(th)
-        k0, k1, k2 = p0 / th, p1 / th, p2 / th
-    # E = I + a k̃ + b2 k̃², k̃² = k kᵀ − |k|² I
-    kk = k0 * k0 + k1 * k1 + k2 * k2
-    E[0, 0] = 1.0 + b2 * (k0 * k0 - kk)
-    E[1, 1] = 1.0 + b2 * (k1 * k1 - kk)
-    E[2, 2] = 1.0 + b2 * (k2 * k2 - kk)
-    E[0, 1] = -a * k2 + b2 * k0 * k1
-    E[1, 0] = a * k2 + b2 * k0 * k1
-    E[0, 2] = a * k1 + b2 * k0 * k2
-    E[2, 0] = -a * k1 + b2 * k0 * k2
-    E[1, 2] = -a * k0 + b2 * k1 * k2
-    E[2, 1] = a * k0 + b2 * k1 * k2
+    (E[0, 0], E[0, 1], E[0, 2], E[1, 0], E[1, 1], E[1, 2], E[2, 0], E[2, 1],
+     E[2, 2]) = _rodrigues_entries(p0, p1, p2)
     for r in range(3):
         for c in range(3):
             out[r, c] = E[r, 0] * Rs[0, c] + E[r, 1] * Rs[1, c] + E[r, 2] * Rs[2, c]
