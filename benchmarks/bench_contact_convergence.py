@@ -193,7 +193,7 @@ def main():
     for mom in (1.0, 0.0):
         for n in sorted(args.sweeps, reverse=True):
             a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0]
-            a[23], a[24], a[-5] = int(n), 0.0, mom  # max_iter, tol, momentum (then the screening arguments, row mask)
+            a[23], a[24], a[-4] = int(n), 0.0, mom  # max_iter, tol, momentum (then the screening arguments)
             c = time.process_time()
             sw, change, _ = KC.coupled_iterate(*a)
             results[f"{n} {'nesterov' if mom else 'plain'}"] = (

@@ -108,7 +108,7 @@ def main():
         kernels.append(("serial", KC.coupled_iterate))
     totals = {}
     for i, a0 in enumerate(captured):
-        body_part, momentum, screen = a0[-6], a0[-5], a0[-4:-1]
+        body_part, momentum, screen = a0[-5], a0[-4], a0[-3:]
         n_rows = a0[35]
         body, partner = a0[10][:n_rows], a0[11][:n_rows]
         pa = body_part[body]
@@ -119,9 +119,9 @@ def main():
         ref = None
         m2 = None
         if args.ref_sweeps > 0:
-            a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0[:-6]]
+            a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0[:-5]]
             a[23], a[24] = args.ref_sweeps, 0.0
-            KC.coupled_iterate_parallel(*a, np.zeros(0, np.int64), momentum, *screen, a0[-1].copy())
+            KC.coupled_iterate_parallel(*a, np.zeros(0, np.int64), momentum, *screen)
             ref = a[16]
             R, mass, inertia = a0[18], a0[17], a0[19]
             Iw = np.einsum("sac,sc,sbc->sab", R, inertia, R)
@@ -134,9 +134,9 @@ def main():
             for rep in range(args.repeats):
                 base = None
                 for vname, part in variants:
-                    a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0[:-6]]
+                    a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0[:-5]]
                     w0, c0 = time.perf_counter(), time.process_time()
-                    sw, change, prom = kern(*a, part, momentum, *screen, a0[-1].copy())
+                    sw, change, prom = kern(*a, part, momentum, *screen)
                     w, c = time.perf_counter() - w0, time.process_time() - c0
                     base = w if base is None else base
                     key = (kname, vname)

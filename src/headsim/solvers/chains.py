@@ -157,9 +157,8 @@ WARM_START_FRACTION = 0.5
 CLOSING_MARGIN_FACTOR = 1.0
 # candidate_band="relative": a band widened for at most this fraction of the segments is detected by sweeping
 # those segments against the others (headsim.collide.fibre_bvh.subset_contact_pairs) instead of a whole tree
-# query (ringlet start: 55–1,300 segments per widening, 50–140 ms with the fused pass instead of 0.3–0.5 s;
-# the landing strand at t = 85 ms: 2,468 segments (7 %), 0.31 s instead of 1.69 s)
-SUBSET_QUERY_FRACTION = 0.2
+# query (ringlet start: a few hundred segments per widening, ≈ 10 ms instead of 0.3 s)
+SUBSET_QUERY_FRACTION = 0.05
 
 
 # ------------------------------------------------------------------------------------------------
@@ -1348,7 +1347,6 @@ class ChainSolver:
         self._band_extensions = 0  # candidate_band="relative": widened detections of the last step
         self._widen_seconds = 0.0  # candidate_band="relative": their time, s
         self._rel_grid = None  # candidate_band="relative": the LocalMotionBound of this step's detection state
-        self._row_mask = None  # (rows, (n,) bool): the kernel rows of the last coupled solve of these rows
 
     @staticmethod
     def _writable(a):
@@ -1777,17 +1775,10 @@ class ChainSolver:
                 self._budgeted = n_budget > cap
                 if n_budget > cap:
                     cap, tol = n_budget, min(tol, float(o.small_system_tolerance)) * tol_scale
-            # the candidates an earlier solve of the same rows promoted start as rows (the push-out solve after the
-            # velocity solve, the second pass after the first): they need not be found and set up again, and the
-            # sweeps the kernel adds after late promotions are not spent again (landing strand, t = 85–86 ms:
-            # 100–160 k promotions per solve, each solve at 60 sweeps)
-            if self._row_mask is None or self._row_mask[0] is not rows:
-                self._row_mask = (rows, np.zeros(len(pr), np.bool_))
             sw, change, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
                                         float(o.restitution), cap, tol, lam_p,
                                         fr_p, *joints, n_rows, bool(joints_last), body_part, self._momentum,
-                                        *screen, self._row_mask[1])
-            self._solve_rows = int(self._row_mask[1].sum())
+                                        *screen)
             if change > tol:  # stopped by the sweep cap, not by the stopping rule
                 self._qp_capped += 1
             self._qp_residual = max(self._qp_residual, float(change))
@@ -2325,8 +2316,7 @@ class ChainSolver:
             st.reserve_resolves = reserve_rounds
         if o.contact_coupling == "coupled" and len(lam):
             st.candidate_rows = int((rows.primary & ~rows.tight).sum())
-            st.contact_rows = (self._solve_rows if self._row_mask is not None and self._row_mask[0] is rows
-                               else int((rows.primary & rows.tight).sum()) + self._promoted)
+            st.contact_rows = int((rows.primary & rows.tight).sum()) + self._promoted
             st.promoted_rows = promoted
         st.obstacle_contacts = int((active & rows.obstacle).sum())
         st.fibre_contacts = st.contacts - st.obstacle_contacts

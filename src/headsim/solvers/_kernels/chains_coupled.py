@@ -336,7 +336,7 @@ def _coupled_setup_impl(body, partner, normal, lever, partner_lever, mass, R, in
 def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner, normal, lever, partner_lever, target,
                           u, mass, R, inertia, mu_cos, mu_sin, restitution, max_iter, tol, lam_out, fr_out, joint_k,
                           joint_l, joint_rk, joint_rl, joint_target, joint_compliance_inv, joint_w0, chain_off,
-                          n_listed_rows, joints_last, body_part, momentum, ref_vn, u_ref0, rho0, row_mask):
+                          n_listed_rows, joints_last, body_part, momentum, ref_vn, u_ref0, rho0):
     """The iteration of :func:`project_coupled` on the set-up of :func:`_coupled_setup_impl` (whose
     candidate rows it fills in when it promotes them). Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
     ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
@@ -398,11 +398,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     n·(u_A − u_B) at the contact points for the twists u_ref0 (computed where the rows were detected) and a
     bound of every body's contact levers (h + r); with them the first candidate test is screened as the later
     ones are (see the candidate block), instead of reading every candidate. Empty ``ref_vn``: the first test
-    reads them all.
-
-    ``row_mask`` (nc,) bool (empty: off): on entry, the candidates marked start as rows (a rows' bound that
-    holds leaves it without impulse: the same fixed point); on exit every contact that was a row is marked (the
-    rows from the start and the promoted candidates)."""
+    reads them all."""
     nc = body.shape[0]
     m = mu_cos.shape[0]
     n_on = nc if n_listed_rows < 0 else min(n_listed_rows, nc)
@@ -411,15 +407,6 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
         rowid[c] = c
     is_row = np.zeros(nc, np.bool_)
     is_row[:n_on] = True
-    Iw1 = np.empty((3, 3))
-    if row_mask.shape[0] == nc:  # candidates that start as rows (set up here; see ``row_mask``)
-        for c in range(n_on, nc):
-            if row_mask[c]:
-                _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W,
-                              Iw1)
-                is_row[c] = True
-                rowid[n_on] = c
-                n_on += 1
     nj = joint_k.shape[0]
     nch = chain_off.shape[0] - 1
     Lam = np.zeros((nj, 3))
@@ -436,7 +423,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     # warm start: apply the initial impulses (the first joint sweep then re-closes the joints); candidates
     # start without impulse
     for c in range(nc):
-        if not is_row[c]:
+        if c >= n_on:
             lam[c] = 0.0
         if lam[c] < 0.0:
             lam[c] = 0.0
@@ -454,6 +441,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                 du = MB[c, 0, z] * lam[c]
                 u[b, z] -= du + MB[c, 1, z] * fr[c, 0] + MB[c, 2, z] * fr[c, 1]
                 dun[b, z] -= du
+    Iw1 = np.empty((3, 3))
     promoted = 0
     screened = False  # candidate screening state (see the candidate block)
     u_ref = np.empty((0, 6))
@@ -467,9 +455,8 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
         rho = rho0.copy()
         dbound = np.zeros(u.shape[0])
         cand_slack = np.empty(nc)
-        for c in range(nc):
-            if not is_row[c]:
-                cand_slack[c] = ref_vn[c] - target[c]
+        for c in range(n_on, nc):
+            cand_slack[c] = ref_vn[c] - target[c]
         umax = 0.0
         for z in range(u.shape[0]):
             umax = max(umax, np.sqrt(u_ref[z, 0] ** 2 + u_ref[z, 1] ** 2 + u_ref[z, 2] ** 2)
@@ -492,11 +479,10 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     for z in range(bpart.shape[0]):
         nd = max(nd, bpart[z] + 1)
     dom = np.empty(nc, np.int64)  # rows only (candidates get theirs when they become rows)
-    for i in range(n_on):
-        dom[rowid[i]] = 0
+    for c in range(n_on):
+        dom[c] = 0
     if nd > 1:
-        for i in range(n_on):
-            c = rowid[i]
+        for c in range(n_on):
             pa = bpart[body[c]]
             pb = bpart[partner[c]] if partner[c] >= 0 else pa
             dom[c] = pa if pa == pb else nd
@@ -518,8 +504,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     lam_prev = np.empty(nc if momentum > 0.0 else 0)
     lam_start = np.empty(nc if momentum > 0.0 else 0)
     if momentum > 0.0:  # rows only; a candidate's are set (0) when it becomes a row
-        for i in range(n_on):
-            c = rowid[i]
+        for c in range(n_on):
             lam_prev[c] = lam[c]
             lam_start[c] = lam[c]
     k_mom = 0
@@ -741,9 +726,6 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
         for s in range(u.shape[0]):
             for z in range(6):
                 u[s, z] += restitution * dun[s, z]
-    if row_mask.shape[0] == nc:
-        for i in range(n_on):
-            row_mask[rowid[i]] = True
     return it, change, promoted
 
 
@@ -769,7 +751,7 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
     return iterate(*pre, body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                    restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
                    joint_compliance_inv, joint_w0, chain_off, n_listed_rows, False, body_part, float(momentum),
-                   np.zeros(0), np.zeros((0, 6)), np.zeros(0), np.zeros(0, np.bool_))
+                   np.zeros(0), np.zeros((0, 6)), np.zeros(0))
 
 
 def project_coupled_parallel(*args):
