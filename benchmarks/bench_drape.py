@@ -194,26 +194,30 @@ runs in one session, machine otherwise idle; the machine ran ≈ 10 % faster tha
 old tree's ringlet start took 1.69–1.80 s against 1.91–1.95 s then):
 
 * The relative band's bound is now local (:class:`headsim.solvers.chain_band.LocalMotionBound`: each segment's
-  deviation from a trilinear reference field of the point velocities on a 1 mm grid, plus the field's change
+  deviation from a trilinear reference field of the point velocities on a 1 mm grid (coarser for a spread
+  strand: at most 200 k nodes), plus the field's change
   within the segment's reach), a band widened for a few segments is detected around those only
   (:func:`headsim.collide.fibre_bvh.subset_contact_pairs`: 5–80 ms against 0.3–0.5 s for a whole query), the
   half step has no temporaries (integration 0.11 → 0.03 s per step), and a reserve chunk with one pair a solve
   closes hands all its suspects back (one re-solve instead of up to five).
-* Ringlet start (command above): old 1.69 / 1.80 / 1.77 s per step, new 1.52 / 1.56 s, with the reference grid
-  capped at 200 k nodes (the final state of the session) **1.39 s** (detection 0.83–0.96 → 0.66–0.70 s;
-  4.3 M → 1.8 M detected pairs at t = 6 ms, of which ≈ 1 M belong to the ≈ 2,000 segments near the tips moving
-  at ≈ 2 m/s; the same contacts, rows, penetration, energy and joint gap to the printed digits).
+* Ringlet start (command above): old 1.69 / 1.80 / 1.77 / 1.68 s per step, final **1.37–1.39 s** (detection
+  0.83–0.96 → 0.66–0.67 s, integration 0.11 → 0.03 s; 4.3 M → 1.8 M detected pairs at t = 6 ms, of which ≈ 1 M
+  belong to the ≈ 2,000 segments near the tips moving at ≈ 2 m/s; the same contacts, rows, penetration, energy
+  and joint gap to the printed digits).
 * Fall and landing (derived geometry, 30 steps from a saved t = 60 ms state; ``--settle 58 --steps 30
-  --coupled-only`` runs the same steps after settling): old 146.5 / 146.6 s, new 109.2 s, with the grid cap
-  **102.7 s**. Per step (old → final): 61–76 ms 1.10–1.23 → 0.89–1.04 s (1.2–1.3 M → 0.35–0.48 M reserve
-  pairs, the same states), 77–82 ms 1.6–2.4 → 1.1–1.3 s, 83 ms 8.5 → 4.8 s, 84 ms 29.8 → 12.0 s (300 k
-  reserve pairs closed: 1 re-solve instead of 5), 85–90 ms 11–15 → 8.1–15 s (contacts 6–12 s: 190–330 k
-  rows and 1.7–2.1 M candidates, whose allowances δ̂ of 0.7–0.9 m/s belong to the 10 % of the segments
-  sliding off the sphere; 1.0× instead of 1.5× the last change as the allowance changed the candidates by
-  < 10 % and the time not at all).
-* Goal 0.2 s: still ≈ 4.5× off for the falling strand (≈ 0.9 s per step: 3 solves of 30 sweeps 0.36 s and
-  0.14 s of their set-ups and reserve checks, detection 0.28 s, joints 0.07 s, integration 0.03 s) and ≈ 7×
-  for the ringlet start.
+  --coupled-only`` runs the same steps after settling): old 146.5 / 146.6 / 149.8 s, final **92.7 s**. Per
+  step (old → final): 61–76 ms 1.10–1.23 → 0.81–0.95 s (1.2–1.3 M → 0.35–0.48 M reserve pairs, the same
+  states), 77–82 ms 1.6–2.4 → 1.0–1.2 s, 83 ms 8.5 → 4.2 s, 84 ms 29.8 → 10.7 s (300 k reserve pairs closed:
+  1 re-solve instead of 5), 85–90 ms 11–15 → 7.4–13.4 s (contacts 6–11 s: 190–330 k rows and 1.7–2.1 M
+  candidates, whose allowances δ̂ of 0.7–0.9 m/s belong to the 10 % of the segments sliding off the sphere;
+  1.0× instead of 1.5× the last change as the allowance changed the candidates by < 10 % and the time not at
+  all; each solve runs 60 sweeps and promotes 25–160 k candidates).
+* Tried and left out: the candidates one solve promoted starting the next solve of the same rows as rows
+  (the landing sequence 7 % faster, but on the ringlet start the capped iterates came out worse: max
+  penetration 44.2 → 50.3 µm, largest solve 49 → 60 sweeps).
+* Goal 0.2 s: still ≈ 4–5× off for the falling strand (0.8–0.95 s per step: 3 solves of 30 sweeps ≈ 0.36 s
+  and ≈ 0.14 s of their set-ups and reserve checks, detection 0.28 s, joints 0.07 s, integration 0.03 s) and
+  ≈ 7× for the ringlet start.
 """
 
 from __future__ import annotations
