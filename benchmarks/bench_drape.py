@@ -193,10 +193,10 @@ Issue 10, fourteenth session ("old" = commit 60ed2ca's source tree from a git wo
 runs in one session, machine otherwise idle; the machine ran ≈ 10 % faster than in the thirteenth session: the
 old tree's ringlet start took 1.69–1.80 s against 1.91–1.95 s then):
 
-* The relative band's bound is now local (:class:`headsim.solvers.chain_band.LocalMotionBound`: each segment's
-  deviation from a trilinear reference field of the point velocities on a 1 mm grid (coarser for a spread
-  strand: at most 200 k nodes), plus the field's change
-  within the segment's reach), a band widened for a few segments is detected around those only
+* The relative band's bound is now local (:class:`headsim.solvers.chain_band.LocalMotionBound`: each
+  segment's deviation from a trilinear reference field of the point velocities on a 1 mm grid (coarser for a
+  spread strand: at most 200 k nodes), plus the field's change within the segment's reach), a band widened
+  for a few segments is detected around those only
   (:func:`headsim.collide.fibre_bvh.subset_contact_pairs`: 5–80 ms against 0.3–0.5 s for a whole query), the
   half step has no temporaries (integration 0.11 → 0.03 s per step), and a reserve chunk with one pair a solve
   closes hands all its suspects back (one re-solve instead of up to five).
