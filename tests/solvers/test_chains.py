@@ -946,3 +946,28 @@ def test_fused_detection_pass_and_stepwise_fallback_build_the_same_rows(monkeypa
     stepwise = run()
     for name in ("position", "rotation", "velocity", "angular_velocity"):
         assert np.array_equal(getattr(fused, name), getattr(stepwise, name)), name
+
+
+def test_log_so3_inverts_the_exponential_map_also_near_pi():
+    """The SO(3) log of the joint springs (eq. 8.83; scalar kernel ``_log_so3_parts``): for rotation vectors φ
+    with |φ| from 1e-9 to π − 1e-3 it returns φ; within 1e-3 of π, exp(log R) = R and |log R| = θ to 1e-5
+    (there the (R − Rᵀ)/(2 sin θ) form loses accuracy as ε/(π − θ)²: 3.6e-6 at π − 1e-5; from
+    sin θ < 1e-6 on the axis comes from the symmetric part of R)."""
+    from scipy.spatial.transform import Rotation
+
+    from headsim.solvers._kernels.chains import log_so3, rodrigues
+
+    rng = np.random.default_rng(5)
+    axes = rng.normal(size=(300, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    for angle in (1e-9, 1e-7, 1e-3, 0.5, 2.0, np.pi - 1e-3):
+        for a in axes[:50]:
+            phi = angle * a
+            R = Rotation.from_rotvec(phi).as_matrix()
+            np.testing.assert_allclose(log_so3(R), phi, rtol=1e-6, atol=1e-12)
+    for angle in (np.pi - 1e-5, np.pi - 1e-9, np.pi):
+        for a in axes:
+            R = Rotation.from_rotvec(angle * a).as_matrix()
+            phi = log_so3(R)
+            assert abs(np.linalg.norm(phi) - angle) < 1e-5
+            np.testing.assert_allclose(rodrigues(phi), R, atol=1e-5)

@@ -48,31 +48,45 @@ def rodrigues(phi):
     return out + np.sin(th) * k + (1.0 - np.cos(th)) * (k @ k)
 
 
-@njit(cache=True)
-def log_so3(R):
-    """Rotation vector φ with exp(φ̃) = R (SO(3) log, eq. 8.83: 2 cos θ = tr R − 1, Ω̃ = (R − Rᵀ)/(2 sin θ))."""
+@njit(cache=True, inline="always")
+def _log_so3_parts(R):
+    """The components of :func:`log_so3` (R) as three scalars (no temporary arrays)."""
     c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
     c = min(1.0, max(-1.0, c))
     th = np.arccos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    v0, v1, v2 = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
     if th < 1e-6:
-        return 0.5 * v
+        return 0.5 * v0, 0.5 * v1, 0.5 * v2
     s = np.sin(th)
     if s > 1e-6:
-        return v * (0.5 * th / s)
-    # near π: axis from the symmetric part B = cosθ E + (1 − cosθ) a aᵀ
-    B = 0.5 * (R + R.T)
-    ax = np.zeros(3)
-    for j in range(3):
-        ax[j] = np.sqrt(max(0.0, (B[j, j] - c) / (1.0 - c)))
-    i = np.argmax(ax)
-    for j in range(3):
-        if j != i:
-            ax[j] = B[i, j] / ((1.0 - c) * ax[i])
-    ax /= np.sqrt(ax[0] ** 2 + ax[1] ** 2 + ax[2] ** 2)
-    if ax[0] * v[0] + ax[1] * v[1] + ax[2] * v[2] < 0:
-        ax = -ax
-    return ax * th
+        f = 0.5 * th / s
+        return v0 * f, v1 * f, v2 * f
+    # near π: axis from the symmetric part B = cosθ E + (1 − cosθ) a aᵀ (its largest diagonal entry first)
+    a0 = np.sqrt(max(0.0, (R[0, 0] - c) / (1.0 - c)))
+    a1 = np.sqrt(max(0.0, (R[1, 1] - c) / (1.0 - c)))
+    a2 = np.sqrt(max(0.0, (R[2, 2] - c) / (1.0 - c)))
+    if a0 >= a1 and a0 >= a2:
+        a1 = 0.5 * (R[0, 1] + R[1, 0]) / ((1.0 - c) * a0)
+        a2 = 0.5 * (R[0, 2] + R[2, 0]) / ((1.0 - c) * a0)
+    elif a1 >= a2:
+        a0 = 0.5 * (R[1, 0] + R[0, 1]) / ((1.0 - c) * a1)
+        a2 = 0.5 * (R[1, 2] + R[2, 1]) / ((1.0 - c) * a1)
+    else:
+        a0 = 0.5 * (R[2, 0] + R[0, 2]) / ((1.0 - c) * a2)
+        a1 = 0.5 * (R[2, 1] + R[1, 2]) / ((1.0 - c) * a2)
+    nrm = np.sqrt(a0 ** 2 + a1 ** 2 + a2 ** 2)
+    a0, a1, a2 = a0 / nrm, a1 / nrm, a2 / nrm
+    if a0 * v0 + a1 * v1 + a2 * v2 < 0:
+        a0, a1, a2 = -a0, -a1, -a2
+    return a0 * th, a1 * th, a2 * th
+
+
+@njit(cache=True)
+def log_so3(R):
+    """Rotation vector φ with exp(φ̃) = R (SO(3) log, eq. 8.83: 2 cos θ = tr R − 1, Ω̃ = (R − Rᵀ)/(2 sin θ);
+    near θ = π the axis from the symmetric part of R)."""
+    t0, t1, t2 = _log_so3_parts(R)
+    return np.array([t0, t1, t2])
 
 
 @njit(cache=True, inline="always")
@@ -156,30 +170,11 @@ def half_step(x, R, v, w, inertia, h, x_out, R_out, w_out):
 
 
 @njit(cache=True, inline="always")
-def _joint_impulses_on_body(b, s, n, j0, P, R, half):
-    """Net linear impulse fl (3,) and angular impulse tq (3,) of the joint impulses P (nj, 6) on body b
-    (global segment s) of a chain of n bodies whose first joint row is j0: its inner joint b (body is
-    "l") if it exists, and its outer joint b + 1 (body is "k"), applied at the segment ends ±half s."""
-    fl = np.zeros(3)
-    tq = np.zeros(3)
-    if b >= j0:
-        jj = b - j0
-        p = P[jj, :3]
-        rl = -half[s] * R[s, :, 2]
-        fl -= p
-        tq -= P[jj, 3:] + _cross(rl, p)
-    if b + 1 < n:
-        jj = b + 1 - j0
-        p = P[jj, :3]
-        rk = half[s] * R[s, :, 2]
-        fl += p
-        tq += P[jj, 3:] + _cross(rk, p)
-    return fl, tq
-
-
-@njit(cache=True, inline="always")
 def _joint_impulses_into(b, s, n, j0, P, R, half, fl, tq):
-    """Allocation-free :func:`_joint_impulses_on_body`: writes fl (3,), tq (3,)."""
+    """Net linear impulse fl (3,) and angular impulse tq (3,) (written in place) of the joint impulses P
+    (nj, 6) on body b (global segment s) of a chain of n bodies whose first joint row is j0: its inner joint
+    b (body is "l") if it exists, and its outer joint b + 1 (body is "k"), applied at the segment ends
+    ±half s."""
     for c in range(3):
         fl[c] = 0.0
         tq[c] = 0.0
@@ -264,10 +259,10 @@ def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root
         for r in range(3):
             for c in range(3):
                 Q[r, c] = Rk[0, r] * R_end[b, 0, c] + Rk[1, r] * R_end[b, 1, c] + Rk[2, r] * R_end[b, 2, c]
-        th = log_so3(Q)
-        e0 = K[s, 0] * (th[0] - rest[s, 0])
-        e1 = K[s, 1] * (th[1] - rest[s, 1])
-        e2 = K[s, 2] * (th[2] - rest[s, 2])
+        th0, th1, th2 = _log_so3_parts(Q)
+        e0 = K[s, 0] * (th0 - rest[s, 0])
+        e1 = K[s, 1] * (th1 - rest[s, 1])
+        e2 = K[s, 2] * (th2 - rest[s, 2])
         c_d = damping[s]
         m0 = Rk[0, 0] * e0 + Rk[0, 1] * e1 + Rk[0, 2] * e2 + c_d * (w_new[b, 0] - wk0)
         m1 = Rk[1, 0] * e0 + Rk[1, 1] * e1 + Rk[1, 2] * e2 + c_d * (w_new[b, 1] - wk1)
@@ -535,14 +530,16 @@ def correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, 
         gmax = _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root_frame, f, dt,
                             gravity, dx_extra, dth_extra, K, rest, damping, res, x_end, R_end, w_new)
     # apply the impulses to the t_i velocities (Alg. 7 line 12)
+    fl = np.empty(3)
+    tq = np.empty(3)
+    Iwi = np.empty((3, 3))
     for b in range(n):
         s = s0 + b
-        fl, tq = _joint_impulses_on_body(b, s, n, j0, P, R, half)
-        Iwi = world_inverse_inertia(R[s], inertia[s])
-        wn = w[s] + Iwi @ tq
+        _joint_impulses_into(b, s, n, j0, P, R, half, fl, tq)
+        _inv_inertia_into(R[s], inertia[s], Iwi)
         for c in range(3):
             v_out[s, c] = v[s, c] + fl[c] / mass[s]
-            w_out[s, c] = wn[c]
+            w_out[s, c] = w[s, c] + (Iwi[c, 0] * tq[0] + Iwi[c, 1] * tq[1] + Iwi[c, 2] * tq[2])
     return it, gmax
 
 
