@@ -1453,7 +1453,7 @@ class ChainSolver:
             spd = self._speed if self._speed is not None else np.zeros(model.n_segments)
             if self._pair_speed is not None:  # candidate_band="relative"
                 spd = self._pair_speed
-            rdet = r * (1.0 + 0.5 * o.contact_band) + 0.5 * margin + 0.75 * spd * dt
+            rdet = self._detection_base(model, dt) + 0.75 * spd * dt
             fs = FibreSet(nodes, so + np.arange(F + 1), rdet)
             # the packed AABB tree (variant AP) returns exactly the contact set of the AS tree: 4.3x faster on
             # the 35,500-segment reference scene (0.28 s vs 1.21 s), but slower on small scenes (320
@@ -1970,23 +1970,30 @@ class ChainSolver:
         """(S,) m/s allowance speed of every segment for the fibre pairs' candidate band
         (``ChainOptions.candidate_band = "relative"``) with the allowance ``dhat`` (S,) m/s, or None where the
         absolute band is narrower."""
-        o = self.options
-        r = model.radius
-        # the absolute band's reach of every segment (its detection radius at its own speed plus 1.5 δ̂ Δt): pairs
-        # farther apart cannot close within the step (chain_band module docstring)
-        self._rel_base = r * (1.0 + 0.5 * o.contact_band) + 0.5 * o.speculative_speed * dt
-        reach = self._rel_base + dt * (self._speed + 1.5 * dhat)
+        self._rel_base = self._detection_base(model, dt)
         self._rel_grid = LocalMotionBound(x_mid, R_mid[:, :, 2], u_minus[:, :3], u_minus[:, 3:], model.half_length,
-                                          model.mass, float(reach.max()))
+                                          model.mass, float(self._band_reach(dt, dhat).max()))
         a = self._relative_speeds(dt, dhat)
         return None if a.sum() >= self._speed.sum() else a
+
+    def _detection_base(self, model, dt):
+        """(S,) m: a segment's fibre-pair detection radius without its speed term: its radius, half the row band
+        (``contact_band``) and half the speculative margin (``speculative_speed`` Δt); the BVH's radius adds
+        0.75 s Δt for the band speed s (see :meth:`_detect`)."""
+        o = self.options
+        return model.radius * (1.0 + 0.5 * o.contact_band) + 0.5 * (o.speculative_speed * dt)
+
+    def _band_reach(self, dt, dhat):
+        """(S,) m: the absolute band's reach of every segment (its detection radius at its own speed, plus 1.5 δ̂ Δt
+        for the allowance ``dhat`` (S,) m/s): pairs farther apart cannot close within the step (chain_band module
+        docstring)."""
+        return self._rel_base + dt * (self._speed + 1.5 * dhat)
 
     def _relative_speeds(self, dt, dhat):
         """(S,) m/s: a = (A + 1.5 δ̂)/0.75 of the relative band for the allowance ``dhat`` (S,) m/s, A the
         local-motion bound of this step's detection state (:class:`headsim.solvers.chain_band.LocalMotionBound`)
         at the reach of the absolute band (see ``ChainOptions.candidate_band``)."""
-        reach = self._rel_base + dt * (self._speed + 1.5 * dhat)
-        return (self._rel_grid.allowance(reach) + 1.5 * dhat) / 0.75
+        return (self._rel_grid.allowance(self._band_reach(dt, dhat)) + 1.5 * dhat) / 0.75
 
     def _widened_band(self, model, rows, dhat, checks, x_det, R_det, u_det, dq0, dq, endvel, dt, row_vn):
         """candidate_band="relative": a pass's twists changed some segments by more than the allowance δ̂ the

@@ -131,24 +131,17 @@ def _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out):
     parallel loop ≈ 8× slower). R_out may be R."""
     for c in range(3):
         x_out[s, c] = x[s, c] + h * v[s, c]
-    # E = exp(h w̃)
-    e00, e01, e02, e10, e11, e12, e20, e21, e22 = _rodrigues_entries(h * w[s, 0], h * w[s, 1], h * w[s, 2])
     # torque-free rotation keeps the world angular momentum L = I_w ω: ω ← I_w(R_new)⁻¹ I_w(R) ω
     # (with the gyroscopic term neglected a frozen ω would pump energy from the tiny axial inertia
     # of a thin segment into its transverse one; this update only ever lowers that energy)
     w0, w1, w2 = w[s, 0], w[s, 1], w[s, 2]
     b0 = (R[s, 0, 0] * w0 + R[s, 1, 0] * w1 + R[s, 2, 0] * w2) * inertia[s, 0]
     b1 = (R[s, 0, 1] * w0 + R[s, 1, 1] * w1 + R[s, 2, 1] * w2) * inertia[s, 1]
-    b2_ = (R[s, 0, 2] * w0 + R[s, 1, 2] * w1 + R[s, 2, 2] * w2) * inertia[s, 2]
-    L0 = R[s, 0, 0] * b0 + R[s, 0, 1] * b1 + R[s, 0, 2] * b2_
-    L1 = R[s, 1, 0] * b0 + R[s, 1, 1] * b1 + R[s, 1, 2] * b2_
-    L2 = R[s, 2, 0] * b0 + R[s, 2, 1] * b1 + R[s, 2, 2] * b2_
-    # R_new = E R, column by column (R_out may be R: each column is read before it is written)
-    for c in range(3):
-        r0, r1, r2 = R[s, 0, c], R[s, 1, c], R[s, 2, c]
-        R_out[s, 0, c] = e00 * r0 + e01 * r1 + e02 * r2
-        R_out[s, 1, c] = e10 * r0 + e11 * r1 + e12 * r2
-        R_out[s, 2, c] = e20 * r0 + e21 * r1 + e22 * r2
+    b2 = (R[s, 0, 2] * w0 + R[s, 1, 2] * w1 + R[s, 2, 2] * w2) * inertia[s, 2]
+    L0 = R[s, 0, 0] * b0 + R[s, 0, 1] * b1 + R[s, 0, 2] * b2
+    L1 = R[s, 1, 0] * b0 + R[s, 1, 1] * b1 + R[s, 1, 2] * b2
+    L2 = R[s, 2, 0] * b0 + R[s, 2, 1] * b1 + R[s, 2, 2] * b2
+    _exp_times_into(h * w[s, 0], h * w[s, 1], h * w[s, 2], R[s], R_out[s])  # R_new = exp(h w̃) R
     n0 = (R_out[s, 0, 0] * L0 + R_out[s, 1, 0] * L1 + R_out[s, 2, 0] * L2) / inertia[s, 0]
     n1 = (R_out[s, 0, 1] * L0 + R_out[s, 1, 1] * L1 + R_out[s, 2, 1] * L2) / inertia[s, 1]
     n2 = (R_out[s, 0, 2] * L0 + R_out[s, 1, 2] * L1 + R_out[s, 2, 2] * L2) / inertia[s, 2]
@@ -203,13 +196,15 @@ def _joint_impulses_into(b, s, n, j0, P, R, half, fl, tq):
 
 
 @njit(cache=True, inline="always")
-def _exp_times_into(p0, p1, p2, Rs, E, out):
-    """out (3, 3) ← exp(φ̃) Rs (Rodrigues as :func:`rodrigues`); E (3, 3) is a work matrix."""
-    (E[0, 0], E[0, 1], E[0, 2], E[1, 0], E[1, 1], E[1, 2], E[2, 0], E[2, 1],
-     E[2, 2]) = _rodrigues_entries(p0, p1, p2)
-    for r in range(3):
-        for c in range(3):
-            out[r, c] = E[r, 0] * Rs[0, c] + E[r, 1] * Rs[1, c] + E[r, 2] * Rs[2, c]
+def _exp_times_into(p0, p1, p2, Rs, out):
+    """out (3, 3) ← exp(φ̃) Rs for φ = (p0, p1, p2) (Rodrigues as :func:`rodrigues`); out may be Rs (each
+    column is read before it is written)."""
+    e00, e01, e02, e10, e11, e12, e20, e21, e22 = _rodrigues_entries(p0, p1, p2)
+    for c in range(3):
+        r0, r1, r2 = Rs[0, c], Rs[1, c], Rs[2, c]
+        out[0, c] = e00 * r0 + e01 * r1 + e02 * r2
+        out[1, c] = e10 * r0 + e11 * r1 + e12 * r2
+        out[2, c] = e20 * r0 + e21 * r1 + e22 * r2
 
 
 @njit(cache=True)
@@ -221,7 +216,7 @@ def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root
     nj = n - j0
     fl = np.empty(3)
     tq = np.empty(3)
-    E = np.empty((3, 3))
+    body_tq = np.empty(3)
     Q = np.empty((3, 3))
     for b in range(n):
         s = s0 + b
@@ -231,13 +226,13 @@ def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root
             t = 0.0
             for c in range(3):
                 t += R[s, c, a] * tq[c]
-            E[0, a] = t / inertia[s, a]
+            body_tq[a] = t / inertia[s, a]
         for a in range(3):
-            w_new[b, a] = w[s, a] + R[s, a, 0] * E[0, 0] + R[s, a, 1] * E[0, 1] + R[s, a, 2] * E[0, 2]
+            w_new[b, a] = w[s, a] + R[s, a, 0] * body_tq[0] + R[s, a, 1] * body_tq[1] + R[s, a, 2] * body_tq[2]
         for c in range(3):
             x_end[b, c] = x[s, c] + dt * (v[s, c] + fl[c] / mass[s]) + 0.5 * dt * dt * gravity[c] + dx_extra[s, c]
         _exp_times_into(dt * w_new[b, 0] + dth_extra[s, 0], dt * w_new[b, 1] + dth_extra[s, 1],
-                        dt * w_new[b, 2] + dth_extra[s, 2], R[s], E, R_end[b])
+                        dt * w_new[b, 2] + dth_extra[s, 2], R[s], R_end[b])
     gmax = 0.0
     for jj in range(nj):
         b = jj + j0
