@@ -152,3 +152,9 @@ def test_subset_contact_pairs_are_the_brute_force_pairs_of_the_query_segments(re
     np.testing.assert_allclose(got_params, params[mine], atol=1e-9)
     empty, _ = subset_contact_pairs(f, np.zeros(0, np.int64))
     assert empty.shape == (0, 2)
+    mask = np.zeros(f.n_segments, bool)
+    mask[query] = True
+    np.testing.assert_array_equal(np.sort(subset_contact_pairs(f, mask)[0], axis=0), np.sort(got, axis=0))
+    for bad in (np.array([f.n_segments]), np.array([-1]), np.array([0.5]), np.ones(3, bool)):
+        with pytest.raises(ParameterError, match="query"):
+            subset_contact_pairs(f, bad)

@@ -609,6 +609,12 @@ def subset_contact_pairs(fibres: FibreSet, query) -> tuple[np.ndarray, np.ndarra
 
     S = fibres.n_segments
     q = np.asarray(query)
+    if q.dtype == np.bool_:
+        if q.shape != (S,):
+            raise ParameterError(f"a query mask must have shape ({S},), got {q.shape}")
+        q = np.flatnonzero(q)
+    elif q.size and (q.ndim != 1 or not np.issubdtype(q.dtype, np.integer) or q.min() < 0 or q.max() >= S):
+        raise ParameterError(f"query must be segment indices in [0, {S}) or an ({S},) bool mask")
     is_query = np.zeros(S, np.bool_)
     is_query[q] = True
     query_idx = np.flatnonzero(is_query).astype(np.int64)
