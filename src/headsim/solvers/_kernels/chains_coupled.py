@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit, prange
 
 from headsim.solvers._kernels.chains import _frame, _inv_inertia_into, _polygon_qp, inv6_into
+from headsim.solvers._kernels.twins import serial_and_parallel
 
 
 @njit(cache=True, inline="always")
@@ -729,10 +730,8 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     return it, change, promoted
 
 
-coupled_setup = njit(cache=True)(_coupled_setup_impl)
-coupled_setup_parallel = njit(cache=True, parallel=True)(_coupled_setup_impl)
-coupled_iterate = njit(cache=True)(_coupled_iterate_impl)
-coupled_iterate_parallel = njit(cache=True, parallel=True)(_coupled_iterate_impl)
+coupled_setup, coupled_setup_parallel = serial_and_parallel(_coupled_setup_impl)
+coupled_iterate, coupled_iterate_parallel = serial_and_parallel(_coupled_iterate_impl)
 
 
 def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from headsim.solvers._kernels.twins import serial_and_parallel
+
 
 @njit(cache=True, inline="always")
 def _pair_band(a, b, radius, speed, band_fraction, margin, dt):
@@ -164,8 +166,7 @@ def touched_fibres(body, partner, fibre, n_fibres):
     return out
 
 
-row_normal_velocity = njit(cache=True)(_row_normal_velocity_impl)
-row_normal_velocity_parallel = njit(cache=True, parallel=True)(_row_normal_velocity_impl)
+row_normal_velocity, row_normal_velocity_parallel = serial_and_parallel(_row_normal_velocity_impl)
 
 
 @njit(cache=True)
@@ -285,12 +286,9 @@ def _scatter_kernel_impulses_impl(order, lam_k, fr_k, lam, fr):
 
 
 # per-row passes: serial, and ``prange`` versions for the ≈ 2–7 M rows and candidates of the reference scene
-warm_start_rows = njit(cache=True)(_warm_start_rows_impl)
-warm_start_rows_parallel = njit(cache=True, parallel=True)(_warm_start_rows_impl)
-kernel_row_inputs = njit(cache=True)(_kernel_row_inputs_impl)
-kernel_row_inputs_parallel = njit(cache=True, parallel=True)(_kernel_row_inputs_impl)
-scatter_kernel_impulses = njit(cache=True)(_scatter_kernel_impulses_impl)
-scatter_kernel_impulses_parallel = njit(cache=True, parallel=True)(_scatter_kernel_impulses_impl)
+warm_start_rows, warm_start_rows_parallel = serial_and_parallel(_warm_start_rows_impl)
+kernel_row_inputs, kernel_row_inputs_parallel = serial_and_parallel(_kernel_row_inputs_impl)
+scatter_kernel_impulses, scatter_kernel_impulses_parallel = serial_and_parallel(_scatter_kernel_impulses_impl)
 
 
 def _gather_rows_impl(order, body, partner, normal, lever, partner_lever, ob, op, on, ol, opl):
@@ -307,8 +305,7 @@ def _gather_rows_impl(order, body, partner, normal, lever, partner_lever, ob, op
             opl[q, z] = partner_lever[r, z]
 
 
-gather_rows = njit(cache=True)(_gather_rows_impl)
-gather_rows_parallel = njit(cache=True, parallel=True)(_gather_rows_impl)
+gather_rows, gather_rows_parallel = serial_and_parallel(_gather_rows_impl)
 
 
 # -- fused detection pass: sort + joint-duplicate filter + rows (ChainSolver._detect) ----------------------------
@@ -497,8 +494,7 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
     return counts[n_chunks]
 
 
-detect_rows = njit(cache=True)(_detect_rows_impl)
-detect_rows_parallel = njit(cache=True, parallel=True)(_detect_rows_impl)
+detect_rows, detect_rows_parallel = serial_and_parallel(_detect_rows_impl)
 
 
 def _reserve_suspects_impl(res_idx, res_sigma, sp, bound, margin, out):
@@ -511,8 +507,7 @@ def _reserve_suspects_impl(res_idx, res_sigma, sp, bound, margin, out):
         out[j] = res_sigma[j] <= bound[sp[i, 0]] + bound[sp[i, 1]] + margin
 
 
-reserve_suspects = njit(cache=True)(_reserve_suspects_impl)
-reserve_suspects_parallel = njit(cache=True, parallel=True)(_reserve_suspects_impl)
+reserve_suspects, reserve_suspects_parallel = serial_and_parallel(_reserve_suspects_impl)
 
 
 @njit(cache=True)

@@ -16,21 +16,19 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from headsim.solvers._kernels.twins import parallel_twin
+
 
 def _serial_and_parallel(func):
-    """Compile ``func`` twice: serial (returned) and with ``parallel=True`` (as ``<name>_parallel``).
+    """Compile ``func`` twice: serial (returned) and with ``parallel=True`` (as ``<name>_parallel``, with its
+    own cache files: :func:`headsim.solvers._kernels.twins.parallel_twin`).
 
     On a few shared cores the per-colour launch of a parallel region costs more than it saves for the
     mesh sizes of a face region; the solver picks one with ``PBDOptions.parallel``.
     """
-    import types
-
-    twin = types.FunctionType(func.__code__, func.__globals__, func.__name__ + "_parallel",
-                              func.__defaults__, func.__closure__)
-    twin.__qualname__ = func.__qualname__ + "_parallel"
-    twin.__doc__ = func.__doc__
-    func.__globals__[twin.__name__] = njit(cache=True, parallel=True)(twin)
+    func.__globals__[func.__name__ + "_parallel"] = parallel_twin(func)
     return njit(cache=True)(func)
+
 
 # --------------------------------------------------------------------------------------------------
 # distance constraints  C = |p_i - p_j| - d   (Monkin 2016 §3, distance constraint)

@@ -1,0 +1,31 @@
+"""Serial and ``parallel=True`` builds of one kernel source, each with its own Numba disk cache.
+
+Numba names a function's cache files after its module, qualified name and first line, not after its
+target options (numba issue #6845, open in 0.68): ``njit(cache=True)(f)`` and
+``njit(cache=True, parallel=True)(f)`` share one cache index, and whichever build is compiled first is
+loaded by both from then on. A process that first ran a small scene (serial kernels) then ran the large
+scenes' "parallel" kernels on one thread, and the other way round the small scenes paid the thread
+launches they are meant to avoid. :func:`parallel_twin` compiles a renamed copy of the function instead
+(``<qualname>_parallel``), whose cache files are its own.
+"""
+
+from __future__ import annotations
+
+import types
+
+from numba import njit
+
+
+def parallel_twin(func):
+    """``njit(cache=True, parallel=True)`` build of a copy of ``func`` named ``<name>_parallel`` (same code,
+    globals, defaults and closure; its own cache files)."""
+    twin = types.FunctionType(func.__code__, func.__globals__, func.__name__ + "_parallel", func.__defaults__,
+                              func.__closure__)
+    twin.__qualname__ = func.__qualname__ + "_parallel"
+    twin.__doc__ = func.__doc__
+    return njit(cache=True, parallel=True)(twin)
+
+
+def serial_and_parallel(func):
+    """(serial, parallel) dispatchers of ``func``: ``njit(cache=True)`` and :func:`parallel_twin`."""
+    return njit(cache=True)(func), parallel_twin(func)
