@@ -254,48 +254,64 @@ def _segment_rows(rows, n, dom, n_domains, out, off):
 
 
 @njit(cache=True, inline="always")
-def _extrapolate(listed, off, lcnt, nd, lam, lam_prev, lam_start, fr, u, dun, body, partner, MA, MB, W, momentum, k,
-                 restart):
-    """Nesterov extrapolation of the contact impulses after a sweep (``momentum`` of
-    :func:`_coupled_iterate_impl`) over the rows the sweep may have changed (the listed rows: a full sweep
-    lists every row it changed, a partial sweep visits only them). k: sweeps since the last restart;
-    returns the next k (0: restarted, nothing extrapolated)."""
+def _extrapolation_dot(listed, lo, cnt, lam, lam_prev, lam_start, W):
+    """Σ W_c (λ_c − y_c)(y_c − λ_{c,k−1}) over the listed rows listed[lo:lo + cnt] (the restart test of
+    the Nesterov extrapolation, see ``momentum`` of :func:`_coupled_iterate_impl`)."""
     dot = 0.0
-    for d in range(nd + 1):
-        for z in range(lcnt[d]):
-            c = listed[off[d] + z]
-            dot += (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[c, 0, 0]
-    k = 0 if (restart or dot < 0.0) else k + 1
-    beta = momentum * (k - 1.0) / (k + 2.0) if k > 1 else 0.0
-    for d in range(nd + 1):
-        for z in range(lcnt[d]):
-            c = listed[off[d] + z]
-            now = lam[c]
-            y = now + beta * (now - lam_prev[c])
-            if y < 0.0:
-                y = 0.0
-            lam_prev[c] = now
-            lam_start[c] = y
-            dl = y - now
-            if dl == 0.0:
-                continue
-            scale = y / now - 1.0 if now > 0.0 else 0.0  # friction in proportion: stays in y·conv{μ_β d_β}
-            dx = fr[c, 0] * scale
-            dy = fr[c, 1] * scale
-            a = body[c]
-            b = partner[c]
-            for q in range(6):
-                du = MA[c, 0, q] * dl
-                u[a, q] += du + MA[c, 1, q] * dx + MA[c, 2, q] * dy
-                dun[a, q] += du
-                if b >= 0:
-                    du = MB[c, 0, q] * dl
-                    u[b, q] -= du + MB[c, 1, q] * dx + MB[c, 2, q] * dy
-                    dun[b, q] -= du
-            lam[c] = y
-            fr[c, 0] += dx
-            fr[c, 1] += dy
-    return k
+    for z in range(cnt):
+        c = listed[lo + z]
+        dot += (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[c, 0, 0]
+    return dot
+
+
+@njit(cache=True, inline="always")
+def _extrapolate_rows(listed, lo, cnt, beta, lam, lam_prev, lam_start, fr, u, dun, body, partner, MA, MB):
+    """Extrapolate the contact impulses of the listed rows listed[lo:lo + cnt] along their last change,
+    λ ← max(0, λ_k + β (λ_k − λ_{k−1})), the friction impulses scaled with their normal impulse (so they stay
+    in their polygon λ·conv{μ_β d_β}), and move the twists u by the extrapolation's impulses."""
+    for z in range(cnt):
+        c = listed[lo + z]
+        now = lam[c]
+        y = now + beta * (now - lam_prev[c])
+        if y < 0.0:
+            y = 0.0
+        lam_prev[c] = now
+        lam_start[c] = y
+        dl = y - now
+        if dl == 0.0:
+            continue
+        scale = y / now - 1.0 if now > 0.0 else 0.0  # friction in proportion: stays in y·conv{μ_β d_β}
+        dx = fr[c, 0] * scale
+        dy = fr[c, 1] * scale
+        a = body[c]
+        b = partner[c]
+        for q in range(6):
+            du = MA[c, 0, q] * dl
+            u[a, q] += du + MA[c, 1, q] * dx + MA[c, 2, q] * dy
+            dun[a, q] += du
+            if b >= 0:
+                du = MB[c, 0, q] * dl
+                u[b, q] -= du + MB[c, 1, q] * dx + MB[c, 2, q] * dy
+                dun[b, q] -= du
+        lam[c] = y
+        fr[c, 0] += dx
+        fr[c, 1] += dy
+
+
+@njit(cache=True, inline="always")
+def _candidate_velocity(c, body, partner, normal, lever, partner_lever, u):
+    """n·(u_A − u_B) at contact c's points for the twists u (m/s): the quantity its bound compares."""
+    a = body[c]
+    b = partner[c]
+    n = normal[c]
+    r = lever[c]
+    s = (n[0] * (u[a, 0] + u[a, 4] * r[2] - u[a, 5] * r[1]) + n[1] * (u[a, 1] + u[a, 5] * r[0] - u[a, 3] * r[2])
+         + n[2] * (u[a, 2] + u[a, 3] * r[1] - u[a, 4] * r[0]))
+    if b >= 0:
+        r = partner_lever[c]
+        s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1]) + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
+              + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
+    return s
 
 
 def _coupled_setup_impl(body, partner, normal, lever, partner_lever, mass, R, inertia, joint_k, joint_l, joint_rk,
@@ -497,6 +513,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     listed = np.empty(nc, np.int64)
     tmp = np.empty(nc, np.int64)
     prom_rows = np.empty(nc, np.int64)
+    violated = np.zeros(nc if n_on < nc else 0, np.bool_)  # the candidates a full sweep's test found violated
     full = True
     since_full = 0
     last_full_change = np.inf
@@ -509,6 +526,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             lam_prev[c] = lam[c]
             lam_start[c] = lam[c]
     k_mom = 0
+    ext_dot = np.zeros(nd + 1)
     change = 0.0
     while it < sweep_cap:
         it += 1
@@ -623,47 +641,47 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             # rounding of the tests). On the reference scene this skips 99.8 % of the 1.6 M candidate tests.
             # With ``ref_vn`` the slacks at u_ref = u_ref0 are known before the first test (ρ = rho0), so that
             # test is screened as well.
-            if screened:
-                for z in range(u.shape[0]):
+            if screened:  # the bound and the exact test of every candidate in parallel, the promotions in order
+                for z in prange(u.shape[0]):
                     dv = 0.0
                     dw = 0.0
                     for q in range(3):
                         dv += (u[z, q] - u_ref[z, q]) ** 2
                         dw += (u[z, 3 + q] - u_ref[z, 3 + q]) ** 2
                     dbound[z] = np.sqrt(dv) + np.sqrt(dw) * rho[z]
-            else:
+                for c in prange(nc):
+                    violated[c] = False
+                    if is_row[c]:
+                        continue
+                    bnd = dbound[body[c]] + screen_margin
+                    if partner[c] >= 0:
+                        bnd += dbound[partner[c]]
+                    if bnd < cand_slack[c]:
+                        continue
+                    violated[c] = _candidate_velocity(c, body, partner, normal, lever, partner_lever, u) < target[c]
+            else:  # the first test without ``ref_vn``: records the slacks and levers of the screening
                 u_ref = u.copy()
                 cand_slack = np.empty(nc)
                 rho = np.zeros(u.shape[0])
                 dbound = np.zeros(u.shape[0])
-            for c in range(nc):
-                if is_row[c]:
-                    continue
-                a = body[c]
-                b = partner[c]
-                if screened:
-                    bnd = dbound[a] + screen_margin
-                    if b >= 0:
-                        bnd += dbound[b]
-                    if bnd < cand_slack[c]:
+                for c in range(nc):
+                    violated[c] = False
+                    if is_row[c]:
                         continue
-                n = normal[c]
-                r = lever[c]
-                s = (n[0] * (u[a, 0] + u[a, 4] * r[2] - u[a, 5] * r[1]) + n[1] * (u[a, 1] + u[a, 5] * r[0] - u[a, 3] * r[2])
-                     + n[2] * (u[a, 2] + u[a, 3] * r[1] - u[a, 4] * r[0]))
-                if b >= 0:
-                    r = partner_lever[c]
-                    s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1])
-                          + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
-                          + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
-                if not screened:
-                    cand_slack[c] = s - target[c]
+                    a = body[c]
+                    b = partner[c]
+                    sv = _candidate_velocity(c, body, partner, normal, lever, partner_lever, u)
+                    cand_slack[c] = sv - target[c]
                     r = lever[c]
                     rho[a] = max(rho[a], np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
                     if b >= 0:
                         r = partner_lever[c]
                         rho[b] = max(rho[b], np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
-                if s < target[c]:
+                    violated[c] = sv < target[c]
+            for c in range(nc):
+                if violated[c]:
+                    a = body[c]
+                    b = partner[c]
                     _contact_rows(c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB,
                                   W, Iw1)
                     is_row[c] = True
@@ -715,8 +733,29 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             # back to a full sweep when the listed rows have settled, or every 8 partial sweeps
             full = change <= tol or since_full >= 8
         if momentum > 0.0 and it < sweep_cap:
-            k_mom = _extrapolate(listed, off, lcnt, nd, lam, lam_prev, lam_start, fr, u, dun, body, partner, MA, MB,
-                                 W, momentum, k_mom, n_prom > 0)
+            # Nesterov extrapolation of the impulses after a sweep (``momentum``) over the rows the sweep may have
+            # changed (the listed rows: a full sweep lists every row it changed, a partial sweep visits only
+            # them); k: sweeps since the last restart. The domains' rows in parallel (they share no body), then
+            # the cross rows: every body's twist receives its rows' changes in the serial order.
+            for dd in prange(nd + 1):
+                ext_dot[dd] = _extrapolation_dot(listed, off[dd], lcnt[dd], lam, lam_prev, lam_start, W)
+            dot = 0.0
+            for d in range(nd + 1):
+                dot += ext_dot[d]
+            k_mom = 0 if (n_prom > 0 or dot < 0.0) else k_mom + 1
+            if k_mom > 1:
+                beta = momentum * (k_mom - 1.0) / (k_mom + 2.0)
+                for dd in prange(nd):
+                    _extrapolate_rows(listed, off[dd], lcnt[dd], beta, lam, lam_prev, lam_start, fr, u, dun, body,
+                                      partner, MA, MB)
+                _extrapolate_rows(listed, off[nd], lcnt[nd], beta, lam, lam_prev, lam_start, fr, u, dun, body,
+                                  partner, MA, MB)
+            else:  # restarted or too early: λ_{k−1} ← λ_k, nothing moved
+                for d in range(nd + 1):
+                    for z in range(lcnt[d]):
+                        c = listed[off[d] + z]
+                        lam_prev[c] = lam[c]
+                        lam_start[c] = lam[c]
     if joints_last:
         # one more joint solve after the last contact visits: u then meets every joint row exactly (the contact
         # rows to the iteration's accuracy); see ``joints_last`` in the docstring
