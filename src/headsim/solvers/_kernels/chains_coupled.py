@@ -514,6 +514,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     tmp = np.empty(nc, np.int64)
     prom_rows = np.empty(nc, np.int64)
     violated = np.zeros(nc if n_on < nc else 0, np.bool_)  # the candidates a full sweep's test found violated
+    slack_now = np.empty(nc if n_on < nc else 0)
     full = True
     since_full = 0
     last_full_change = np.inf
@@ -640,7 +641,11 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             # and twists (margin 1e-12 m/s + 1e-9 × the largest contact-point speed at u_ref, far above the
             # rounding of the tests). On the reference scene this skips 99.8 % of the 1.6 M candidate tests.
             # With ``ref_vn`` the slacks at u_ref = u_ref0 are known before the first test (ρ = rho0), so that
-            # test is screened as well.
+            # test is screened as well. A full sweep that tested any candidate exactly moves the reference to its
+            # u: the tested candidates keep their exact slacks, the others the lower bound σ_c − (δ_A + δ_B +
+            # margin), so the screen stays a bound while only the drift since the last rebase counts (landing
+            # strand, t = 86 ms, 1.85 M candidates, 9 full sweeps: 2.2 M exact tests instead of 5.7 M; its solve
+            # 1.52–1.62 → 1.39–1.43 s, the same promotions).
             if screened:  # the bound and the exact test of every candidate in parallel, the promotions in order
                 for z in prange(u.shape[0]):
                     dv = 0.0
@@ -649,6 +654,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                         dv += (u[z, q] - u_ref[z, q]) ** 2
                         dw += (u[z, 3 + q] - u_ref[z, 3 + q]) ** 2
                     dbound[z] = np.sqrt(dv) + np.sqrt(dw) * rho[z]
+                n_tested = 0
                 for c in prange(nc):
                     violated[c] = False
                     if is_row[c]:
@@ -657,8 +663,18 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                     if partner[c] >= 0:
                         bnd += dbound[partner[c]]
                     if bnd < cand_slack[c]:
+                        slack_now[c] = cand_slack[c] - bnd
                         continue
-                    violated[c] = _candidate_velocity(c, body, partner, normal, lever, partner_lever, u) < target[c]
+                    sv = _candidate_velocity(c, body, partner, normal, lever, partner_lever, u)
+                    violated[c] = sv < target[c]
+                    slack_now[c] = sv - target[c]
+                    n_tested += 1
+                if n_tested > 0:  # rebase: the slacks (exact or lower bounds) at this u become the reference
+                    for c in prange(nc):
+                        cand_slack[c] = slack_now[c]
+                    for z in prange(u.shape[0]):
+                        for q in range(6):
+                            u_ref[z, q] = u[z, q]
             else:  # the first test without ``ref_vn``: records the slacks and levers of the screening
                 u_ref = u.copy()
                 cand_slack = np.empty(nc)
