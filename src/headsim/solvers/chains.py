@@ -1740,7 +1740,8 @@ class ChainSolver:
                     screen = (np.ascontiguousarray(sr[1][pr]), sr[2],
                               np.ascontiguousarray(model.half_length + model.radius))
                 else:
-                    screen = (np.zeros(0), np.zeros((0, 6)), np.zeros(0))
+                    # no screened first test; the lever bounds still set the partial sweeps' slack bands
+                    screen = (np.zeros(0), np.zeros((0, 6)), np.ascontiguousarray(model.half_length + model.radius))
                 self._gathered = (rows, pr, n_rows, geo, screen)
             _, pr, n_rows, geo, screen = self._gathered
             tg, lam_p, fr_p = np.empty(len(pr)), np.empty(len(pr)), np.empty((len(pr), 2))
