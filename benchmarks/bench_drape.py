@@ -220,6 +220,41 @@ old tree's ringlet start took 1.69–1.80 s against 1.91–1.95 s then):
 * Goal 0.2 s: still ≈ 4–5× off for the falling strand (0.8–0.95 s per step: 3 solves of 30 sweeps ≈ 0.36 s
   and ≈ 0.14 s of their set-ups and reserve checks, detection 0.28 s, joints 0.07 s, integration 0.03 s) and
   ≈ 7× for the ringlet start.
+
+Issue 10, fifteenth session (one process per line, machine otherwise idle; this session's machine ran the
+unchanged ringlet start at 1.31–1.41 s per step):
+
+* **Numba cache (numba issue #6845).** The serial and ``parallel=True`` builds of one kernel source shared one
+  cache index, so the build compiled first was loaded by both. After a small scene (the tests, the README
+  demo) had compiled first, the ringlet start ran its "parallel" kernels as serial builds: 2.43 s per step
+  (contacts 1.22 s, detection 1.10 s) against 1.51 s with the fix (contacts 0.69 s, detection 0.70 s), same
+  states. Every serial/parallel pair now has its own cache files (``headsim.solvers._kernels.twins``); a test
+  checks that the parallel builds reproduce the serial ones bitwise.
+* **Coupled iteration.** Three changes:
+  - the candidate test runs in parallel, then the promotions in order;
+  - the screen rebases after every full sweep that tested candidates exactly;
+  - the partial sweeps' slack band is set per row from its bodies' velocity changes
+    (``chains_coupled.BAND_FACTOR``).
+
+  Captured solves, timed alone (before → after):
+
+  | solve | before | after | iterates |
+  |---|---|---|---|
+  | landing, t = 86 ms, first solve (144 k rows, 1.85 M candidates) | 1.78–1.94 s | 1.30–1.32 s | differ in the last change: 0.10363 vs 0.10361 m/s, same promotions |
+  | falling, t = 61 ms | 0.10–0.12 s | 0.088–0.10 s | bitwise the same |
+  | ringlet, t = 6 ms | 0.12–0.24 s | 0.083–0.158 s | last changes equal to 5 digits |
+
+  Exact tests in the landing solve: 5.7 M → 2.2 M.
+
+  In the steps themselves the gain is smaller and mostly within the noise:
+  - landing steps 85–86 ms (commit a422972 against the final tree, alternating runs): 12.3–13.2 / 8.8–9.1 s against 11.9–12.1 / 8.5–8.8 s;
+  - the 30-step fall and landing from t = 60 ms: 95.6 s against 94.4 s;
+  - falling steps 62–66 ms: 0.85–1.02 s against 0.91–1.05 s;
+  - ringlet start: 1.41 / 1.48 s against 1.62 / 1.48 s.
+
+  With the per-row band, the ringlet start's state changed: 7,645 contacts, max penetration 41.8 µm (44.2 µm before), kinetic energy
+  5.7312e-05 J, largest solve 60 sweeps (49).
+* Goal 0.2 s: still ≈ 4–5× off on the falling strand and ≈ 7× on the ringlet start.
 """
 
 from __future__ import annotations
