@@ -242,7 +242,7 @@ unchanged ringlet start at 1.31–1.41 s per step):
   |---|---|---|---|
   | landing, t = 86 ms, first solve (144 k rows, 1.85 M candidates) | 1.78–1.94 s | 1.30–1.32 s | differ in the last change: 0.10363 vs 0.10361 m/s, same promotions |
   | falling, t = 61 ms | 0.10–0.12 s | 0.088–0.10 s | bitwise the same |
-  | ringlet, t = 6 ms | 0.12–0.24 s | 0.083–0.158 s | last changes equal to 5 digits |
+  | ringlet, t = 6 ms | 0.12–0.24 s | 0.083–0.20 s (repeat runs later in the session) | last changes equal to 5 digits |
 
   Exact tests in the landing solve: 5.7 M → 2.2 M.
 
