@@ -1735,13 +1735,13 @@ class ChainSolver:
                 gather(pr, *(np.ascontiguousarray(a) for a in (rows.body, rows.partner, rows.normal, rows.lever,
                                                                 rows.partner_lever)), *geo)
                 # the candidates' normal relative velocities at the detection's u⁻ (screened first candidate test)
+                # (the lever bounds h + r also set the partial sweeps' slack bands when there is no screened test)
                 sr = self._screen_ref
+                lever_bound = np.ascontiguousarray(model.half_length + model.radius)
                 if sr is not None and sr[0] is rows and n_rows < n:
-                    screen = (np.ascontiguousarray(sr[1][pr]), sr[2],
-                              np.ascontiguousarray(model.half_length + model.radius))
+                    screen = (np.ascontiguousarray(sr[1][pr]), sr[2], lever_bound)
                 else:
-                    # no screened first test; the lever bounds still set the partial sweeps' slack bands
-                    screen = (np.zeros(0), np.zeros((0, 6)), np.ascontiguousarray(model.half_length + model.radius))
+                    screen = (np.zeros(0), np.zeros((0, 6)), lever_bound)
                 self._gathered = (rows, pr, n_rows, geo, screen)
             _, pr, n_rows, geo, screen = self._gathered
             tg, lam_p, fr_p = np.empty(len(pr)), np.empty(len(pr)), np.empty((len(pr), 2))

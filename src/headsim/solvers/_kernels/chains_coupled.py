@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit, prange
 
 from headsim.solvers._kernels.chains import _frame, _inv_inertia_into, _polygon_qp, inv6_into
+from headsim.solvers._kernels.chains_pairs import row_normal_speed
 from headsim.solvers._kernels.twins import serial_and_parallel
 
 # The partial sweeps' slack band per row (see the sweep schedule in _coupled_iterate_impl): this factor × the
@@ -308,22 +309,6 @@ def _extrapolate_rows(listed, lo, cnt, beta, lam, lam_prev, lam_start, fr, u, du
 
 
 @njit(cache=True, inline="always")
-def _candidate_velocity(c, body, partner, normal, lever, partner_lever, u):
-    """n·(u_A − u_B) at contact c's points for the twists u (m/s): the quantity its bound compares."""
-    a = body[c]
-    b = partner[c]
-    n = normal[c]
-    r = lever[c]
-    s = (n[0] * (u[a, 0] + u[a, 4] * r[2] - u[a, 5] * r[1]) + n[1] * (u[a, 1] + u[a, 5] * r[0] - u[a, 3] * r[2])
-         + n[2] * (u[a, 2] + u[a, 3] * r[1] - u[a, 4] * r[0]))
-    if b >= 0:
-        r = partner_lever[c]
-        s -= (n[0] * (u[b, 0] + u[b, 4] * r[2] - u[b, 5] * r[1]) + n[1] * (u[b, 1] + u[b, 5] * r[0] - u[b, 3] * r[2])
-              + n[2] * (u[b, 2] + u[b, 3] * r[1] - u[b, 4] * r[0]))
-    return s
-
-
-@njit(cache=True, inline="always")
 def _point_change(u, u0, z, rho):
     """|Δv| + |Δω| ρ of body z between the twists u0 and u (m/s): a bound of the velocity change of every point
     within ρ (m) of its centre."""
@@ -333,6 +318,17 @@ def _point_change(u, u0, z, rho):
         dv += (u[z, q] - u0[z, q]) ** 2
         dw += (u[z, 3 + q] - u0[z, 3 + q]) ** 2
     return np.sqrt(dv) + np.sqrt(dw) * rho
+
+
+@njit(cache=True, inline="always")
+def _screen_margin(u_ref, rho):
+    """Rounding margin of the candidate screen, m/s: 1e-12 + 1e-9 × the largest contact-point speed
+    |v| + |ω| ρ at the reference twists u_ref (ρ (S,): the bodies' lever bounds, m)."""
+    umax = 0.0
+    for z in range(u_ref.shape[0]):
+        umax = max(umax, np.sqrt(u_ref[z, 0] ** 2 + u_ref[z, 1] ** 2 + u_ref[z, 2] ** 2)
+                   + np.sqrt(u_ref[z, 3] ** 2 + u_ref[z, 4] ** 2 + u_ref[z, 5] ** 2) * rho[z])
+    return 1e-12 + 1e-9 * umax
 
 
 def _coupled_setup_impl(body, partner, normal, lever, partner_lever, mass, R, inertia, joint_k, joint_l, joint_rk,
@@ -495,11 +491,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
         cand_slack = np.empty(nc)
         for c in range(n_on, nc):
             cand_slack[c] = ref_vn[c] - target[c]
-        umax = 0.0
-        for z in range(u.shape[0]):
-            umax = max(umax, np.sqrt(u_ref[z, 0] ** 2 + u_ref[z, 1] ** 2 + u_ref[z, 2] ** 2)
-                       + np.sqrt(u_ref[z, 3] ** 2 + u_ref[z, 4] ** 2 + u_ref[z, 5] ** 2) * rho[z])
-        screen_margin = 1e-12 + 1e-9 * umax
+        screen_margin = _screen_margin(u_ref, rho)
     n_prom = 0
     sweep_cap = max_iter
     # sweep schedule: a full sweep visits every row; the partial sweeps in between visit only the rows
@@ -609,11 +601,13 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                     if new < 0.0:
                         new = 0.0
                     if new == 0.0 and lam[c] == 0.0 and fr[c, 0] == 0.0 and fr[c, 1] == 0.0:
-                        if full and s - target[c] <= (
-                                max(10.0 * tol, BAND_FACTOR * (band_body[a] + (band_body[b] if b >= 0 else 0.0))) if by_body
-                                else slack_band):
-                            listed[lo + n_new] = c
-                            n_new += 1
+                        if full:
+                            band = slack_band
+                            if by_body:
+                                band = max(10.0 * tol, BAND_FACTOR * (band_body[a] + (band_body[b] if b >= 0 else 0.0)))
+                            if s - target[c] <= band:
+                                listed[lo + n_new] = c
+                                n_new += 1
                         continue  # bound holds, no impulse: the visit changes nothing
                     if full:
                         listed[lo + n_new] = c
@@ -696,7 +690,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                     if bnd < cand_slack[c]:
                         slack_now[c] = cand_slack[c] - bnd
                         continue
-                    sv = _candidate_velocity(c, body, partner, normal, lever, partner_lever, u)
+                    sv = row_normal_speed(c, body, partner, normal, lever, partner_lever, u)
                     violated[c] = sv < target[c]
                     slack_now[c] = sv - target[c]
                     n_tested += 1
@@ -717,7 +711,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                         continue
                     a = body[c]
                     b = partner[c]
-                    sv = _candidate_velocity(c, body, partner, normal, lever, partner_lever, u)
+                    sv = row_normal_speed(c, body, partner, normal, lever, partner_lever, u)
                     cand_slack[c] = sv - target[c]
                     r = lever[c]
                     rho[a] = max(rho[a], np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
@@ -743,11 +737,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                     prom_rows[n_prom] = c
                     n_prom += 1
             if not screened:
-                umax = 0.0
-                for z in range(u.shape[0]):
-                    umax = max(umax, np.sqrt(u_ref[z, 0] ** 2 + u_ref[z, 1] ** 2 + u_ref[z, 2] ** 2)
-                               + np.sqrt(u_ref[z, 3] ** 2 + u_ref[z, 4] ** 2 + u_ref[z, 5] ** 2) * rho[z])
-                screen_margin = 1e-12 + 1e-9 * umax
+                screen_margin = _screen_margin(u_ref, rho)
             screened = True
             promoted += n_prom
             if n_prom > 0:  # the new rows join their domains' segments (and lists, after the listed rows)
@@ -790,19 +780,12 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             for d in range(nd + 1):
                 dot += ext_dot[d]
             k_mom = 0 if (n_prom > 0 or dot < 0.0) else k_mom + 1
-            if k_mom > 1:
-                beta = momentum * (k_mom - 1.0) / (k_mom + 2.0)
-                for dd in prange(nd):
-                    _extrapolate_rows(listed, off[dd], lcnt[dd], beta, lam, lam_prev, lam_start, fr, u, dun, body,
-                                      partner, MA, MB)
-                _extrapolate_rows(listed, off[nd], lcnt[nd], beta, lam, lam_prev, lam_start, fr, u, dun, body,
+            beta = momentum * (k_mom - 1.0) / (k_mom + 2.0) if k_mom > 1 else 0.0  # 0: restarted, nothing moves
+            for dd in prange(nd):
+                _extrapolate_rows(listed, off[dd], lcnt[dd], beta, lam, lam_prev, lam_start, fr, u, dun, body,
                                   partner, MA, MB)
-            else:  # restarted or too early: λ_{k−1} ← λ_k, nothing moved
-                for d in range(nd + 1):
-                    for z in range(lcnt[d]):
-                        c = listed[off[d] + z]
-                        lam_prev[c] = lam[c]
-                        lam_start[c] = lam[c]
+            _extrapolate_rows(listed, off[nd], lcnt[nd], beta, lam, lam_prev, lam_start, fr, u, dun, body, partner,
+                              MA, MB)
     if joints_last:
         # one more joint solve after the last contact visits: u then meets every joint row exactly (the contact
         # rows to the iteration's accuracy); see ``joints_last`` in the docstring

@@ -137,20 +137,26 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     return k
 
 
+@njit(cache=True, inline="always")
+def row_normal_speed(c, body, partner, normal, lever, partner_lever, u):
+    """n_c · (u_A(p_A) − u_B(p_B)) (m/s) of row c with bodies A = body[c], B = partner[c] (−1: a static
+    obstacle, zero velocity) and their levers, for twists u (S, 6)."""
+    a = body[c]
+    n = normal[c]
+    r = lever[c]
+    s = _twist_normal_speed(u, a, n[0], n[1], n[2], r[0], r[1], r[2])
+    b = partner[c]
+    if b >= 0:
+        r = partner_lever[c]
+        s -= _twist_normal_speed(u, b, n[0], n[1], n[2], r[0], r[1], r[2])
+    return s
+
+
 def _row_normal_velocity_impl(body, partner, normal, lever, partner_lever, u, out):
-    """out[c] = n_c · (u_A(p_A) − u_B(p_B)) (m/s) for rows c with bodies A = body, B = partner (−1: a static
-    obstacle, zero velocity) and their levers, for twists u (S, 6). With u = (Δx, Δθ) per body it is the
+    """out[c] = :func:`row_normal_speed` of every row c (m/s). With u = (Δx, Δθ) per body it is the
     first-order change of the rows' gaps (m)."""
     for c in prange(body.shape[0]):
-        a = body[c]
-        n = normal[c]
-        r = lever[c]
-        s = _twist_normal_speed(u, a, n[0], n[1], n[2], r[0], r[1], r[2])
-        b = partner[c]
-        if b >= 0:
-            r = partner_lever[c]
-            s -= _twist_normal_speed(u, b, n[0], n[1], n[2], r[0], r[1], r[2])
-        out[c] = s
+        out[c] = row_normal_speed(c, body, partner, normal, lever, partner_lever, u)
 
 
 @njit(cache=True)
