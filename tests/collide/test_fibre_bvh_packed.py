@@ -158,3 +158,26 @@ def test_subset_contact_pairs_are_the_brute_force_pairs_of_the_query_segments(re
     for bad in (np.array([f.n_segments]), np.array([-1]), np.array([0.5]), np.ones(3, bool)):
         with pytest.raises(ParameterError, match="query"):
             subset_contact_pairs(f, bad)
+
+
+def test_refit_to_moved_fibres_with_new_radii_finds_the_brute_force_contact_set(references):
+    """refit_fibres (the chain solver keeps its tree across steps): after the nodes moved and the radii changed
+    (grown for some segments, shrunk for others), the refitted tree reports exactly the brute-force contacts of
+    the new fibre set."""
+    f, _, _ = references["random"]
+    bvh = PackedFibreBVH(f, 8)
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        nodes = f.nodes + rng.normal(scale=0.01, size=f.nodes.shape)
+        radius = f.radius * rng.uniform(0.5, 2.0, f.n_segments)
+        moved = FibreSet(nodes, f.fibre_offsets, radius)
+        bvh.refit_fibres(moved)
+        pairs, params = capsule_contacts_bruteforce(moved)
+        got, got_params = bvh.self_contact_pairs()
+        np.testing.assert_array_equal(got, pairs)
+        np.testing.assert_array_equal(got_params, params)
+    other = FibreSet(f.nodes[: -f.fibre_offsets[1]], f.fibre_offsets[:-1], f.radius[: -(f.fibre_offsets[1] - 1)])
+    with pytest.raises(ParameterError, match="same fibre offsets"):
+        bvh.refit_fibres(other)
+    with pytest.raises(ParameterError, match="FibreSet"):
+        bvh.refit_fibres(f.nodes)

@@ -546,6 +546,24 @@ class PackedFibreBVH(FibreBVH):
         self._steps_since_rebuild += 1
         return dt
 
+    def refit_fibres(self, fibres: FibreSet) -> float:
+        """Refit the tree to ``fibres``: the same fibres (same offsets) at new node positions and with new capsule
+        radii, without re-partitioning (Alg. 5). The query stays exact (the refitted boxes bound the new
+        capsules); only its speed depends on how far the segments moved since the build. Returns seconds."""
+        if not isinstance(fibres, FibreSet):
+            raise ParameterError("refit_fibres needs a FibreSet (see headsim.collide.fibres_from_arrays)")
+        if not np.array_equal(fibres.fibre_offsets, self.fibres.fibre_offsets):
+            raise ParameterError("refit_fibres needs the fibres the tree was built for (same fibre offsets)")
+        self.fibres = fibres
+        self.nodes = fibres.nodes
+        self._slot_radius = np.ascontiguousarray(fibres.radius[self.perm])
+        t0 = time.perf_counter()
+        self._refit()
+        dt = time.perf_counter() - t0
+        self.timings["update"] = dt
+        self._steps_since_rebuild += 1
+        return dt
+
     def _quality(self) -> float:
         inner = self.child >= 0
         b = self.nbox[inner, :6].astype(np.float64)
@@ -601,11 +619,13 @@ class PackedFibreBVH(FibreBVH):
 def subset_contact_pairs(fibres: FibreSet, query) -> tuple[np.ndarray, np.ndarray]:
     """The colliding segment pairs of ``fibres`` that involve at least one segment of ``query`` (indices or an
     (S,) bool mask), as :meth:`FibreBVH.self_contact_pairs` with ``sort=False`` would report them (a < b,
-    params s, t ∈ [0, 1], same-fibre neighbours skipped), without a tree: the segments' boxes sorted along
-    the axis of the set's largest extent, and each query segment swept against them. For a few query
-    segments (a band widened for some segments only) this costs O(S log S + Q × the segments along its
-    slab) instead of a whole query."""
-    from headsim.collide._kernels_fibre_subset import subset_pairs
+    params s, t ∈ [0, 1], same-fibre neighbours skipped), without a tree: the query segments' boxes binned in
+    a uniform grid (cells about their mean largest side, at most ≈ 16 per query segment), and every segment's
+    box looked up in the cells it overlaps. For a few query segments (a band widened for some segments only)
+    this costs O(S + Q + the pairs' box tests) instead of a whole query (the former sweep along one axis
+    tested every segment of a slab as wide as the largest box: 0.12 s against 0.03 s for 1,960 of the
+    reference scene's 35,500 segments)."""
+    from headsim.collide._kernels_fibre_subset import bin_query_boxes, compact_hits, subset_pairs
 
     S = fibres.n_segments
     q = np.asarray(query)
@@ -622,19 +642,33 @@ def subset_contact_pairs(fibres: FibreSet, query) -> tuple[np.ndarray, np.ndarra
         return np.zeros((0, 2), np.int64), np.zeros((0, 2))
     nodes, start, r = fibres.nodes, fibres.segment_start, fibres.radius
     p0, p1 = nodes[start], nodes[start + 1]
-    axis = int(np.argmax(nodes.max(axis=0) - nodes.min(axis=0)))
-    perm = [axis] + [i for i in range(3) if i != axis]  # the sweep axis first
-    box = np.ascontiguousarray(np.concatenate([np.minimum(p0, p1)[:, perm] - r[:, None],
-                                               np.maximum(p0, p1)[:, perm] + r[:, None]], axis=1))
-    order = np.argsort(box[:, 0], kind="stable").astype(np.int64)
-    lo_sorted = np.ascontiguousarray(box[order, 0])
-    width = float((box[:, 3] - box[:, 0]).max())
-    counts = np.zeros(len(query_idx), np.int64)
-    args = (nodes, np.ascontiguousarray(start), np.ascontiguousarray(fibres.segment_fibre), r, box, order, lo_sorted,
-            width, query_idx, is_query, counts)
-    subset_pairs(*args, np.zeros((0, 2), np.int64), np.zeros((0, 2)), False)
-    total = int(counts.sum())
-    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    box = np.ascontiguousarray(np.concatenate([np.minimum(p0, p1) - r[:, None], np.maximum(p0, p1) + r[:, None]],
+                                              axis=1))
+    qbox = box[query_idx]
+    lo = qbox[:, :3].min(axis=0)
+    extent = qbox[:, 3:].max(axis=0) - lo
+    cell = max(float((qbox[:, 3:] - qbox[:, :3]).max(axis=1).mean()), 1e-12)
+    limit = max(4096, 16 * len(query_idx))
+    while True:
+        dims = np.maximum(np.ceil(extent / cell), 1).astype(np.int64)
+        if int(np.prod(dims)) <= limit:
+            break
+        cell *= 1.5
+    cell_start = np.empty(int(np.prod(dims)) + 1, np.int64)
+    bin_query_boxes(box, query_idx, lo, cell, dims, cell_start, np.zeros(0, np.int64))
+    members = np.empty(max(int(cell_start[-1]), 1), np.int64)
+    bin_query_boxes(box, query_idx, lo, cell, dims, cell_start, members)
+    counts = np.zeros(S, np.int64)
+    args = (nodes, np.ascontiguousarray(start), np.ascontiguousarray(fibres.segment_fibre), r, box, lo, cell, dims,
+            cell_start, members, is_query)
+    # the box pairs counted, the capsule tests written behind their offsets, then the hits compacted
+    subset_pairs(*args, counts, np.zeros((0, 2), np.int64), np.zeros((0, 2)), False)
+    box_offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    room_p, room_r = np.empty((int(counts.sum()), 2), np.int64), np.empty((int(counts.sum()), 2))
+    hits = box_offsets.copy()  # in: where each segment's box pairs start; out: its hits
+    subset_pairs(*args, hits, room_p, room_r, True)
+    hit_offsets = np.concatenate([[0], np.cumsum(hits)[:-1]]).astype(np.int64)
+    total = int(hits.sum())
     pairs, params = np.empty((total, 2), np.int64), np.empty((total, 2))
-    subset_pairs(*args[:-1], offsets, pairs, params, True)
+    compact_hits(box_offsets, hits, room_p, room_r, hit_offsets, pairs, params)
     return pairs, params
