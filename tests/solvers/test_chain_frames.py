@@ -1,0 +1,79 @@
+"""The chain solver's per-segment frame kernels (headsim.solvers._kernels.chains_frames) against the NumPy
+formulas they replace, both builds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from headsim.solvers._kernels import chains_frames as FK
+
+
+def _rotations(rng, n):
+    q, r = np.linalg.qr(rng.normal(size=(n, 3, 3)))
+    return np.ascontiguousarray(q * np.sign(np.diagonal(r, axis1=1, axis2=2))[:, None, :])
+
+
+@pytest.mark.parametrize("build", ["serial", "parallel"])
+def test_frame_products_and_point_speeds_match_numpy(build):
+    rng = np.random.default_rng(3)
+    n = 257
+    R = _rotations(rng, n)
+    d = rng.uniform(1e-12, 1e-10, (n, 3))
+    w = rng.normal(size=(n, 3))
+    u = rng.normal(size=(n, 6))
+    lever = rng.uniform(0.0, 2e-3, n)
+    par = build == "parallel"
+    out = np.empty((n, 3))
+    (FK.apply_scaled_parallel if par else FK.apply_scaled)(R, d, w, out)
+    ref = np.einsum("sij,sj,skj,sk->si", R, d, R, w)
+    np.testing.assert_allclose(out, ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+    frames = np.empty((n, 3, 3))
+    (FK.scaled_frames_parallel if par else FK.scaled_frames)(R, d, frames)
+    ref = np.einsum("sik,sk,sjk->sij", R, d, R)
+    np.testing.assert_allclose(frames, ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+    speed = np.empty(n)
+    (FK.point_speed_parallel if par else FK.point_speed)(u, lever, speed)
+    np.testing.assert_array_equal(speed, np.linalg.norm(u[:, :3], axis=1) + lever * np.linalg.norm(u[:, 3:], axis=1))
+    (FK.point_speed_parallel if par else FK.point_speed)(u, np.array([0.3]), speed)
+    np.testing.assert_array_equal(speed, np.linalg.norm(u[:, :3], axis=1) + 0.3 * np.linalg.norm(u[:, 3:], axis=1))
+
+
+@pytest.mark.parametrize("build", ["serial", "parallel"])
+@pytest.mark.parametrize("with_u", [True, False])
+def test_joint_rows_match_the_numpy_formulas(build, with_u):
+    """Joint rows of two 6-segment fibres (the first anchored at a root frame): bodies, levers, gap targets,
+    spring/damper blocks C = s R_k diag(K) R_kᵀ + c_d c E and relative spins, as written out in NumPy."""
+    rng = np.random.default_rng(5)
+    S, F = 12, 2
+    fib_all = np.repeat(np.arange(F), 6)
+    x = rng.normal(scale=1e-3, size=(S, 3))
+    R = _rotations(rng, S)
+    half = rng.uniform(1e-3, 2e-3, S)
+    root_point = rng.normal(size=(F, 3))
+    root_frame = _rotations(rng, F)
+    K = rng.uniform(1e-9, 1e-8, (S, 3))
+    c = rng.uniform(1e-10, 1e-9, S)
+    u = rng.normal(size=(S, 6)) if with_u else np.zeros((0, 6))
+    seg = np.array([0, 1, 2, 5, 7, 9], np.int64)
+    is_root = np.array([True, False, False, False, False, False])
+    fib = fib_all[seg]
+    ts, ss, ds = -3.0, 0.7e-6, 1e-3
+    n = len(seg)
+    k, rk, rl, tg, C, w0 = (np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+                            np.empty((n, 3, 3)), np.empty((n, 3)))
+    (FK.joint_rows_parallel if build == "parallel" else FK.joint_rows)(
+        seg, is_root, fib, x, R, half, root_point, root_frame, K, c, u, ts, ss, ds, k, rk, rl, tg, C, w0)
+    kk = np.maximum(seg - 1, 0)
+    np.testing.assert_array_equal(k, np.where(is_root, -1, seg - 1))
+    np.testing.assert_array_equal(rl, -half[seg, None] * R[seg, :, 2])
+    np.testing.assert_array_equal(rk, np.where(is_root[:, None], 0.0, half[kk, None] * R[kk, :, 2]))
+    pk = np.where(is_root[:, None], root_point[fib], x[kk] + rk)
+    np.testing.assert_allclose(tg, ts * (pk - (x[seg] + rl)), rtol=1e-14, atol=1e-18)
+    Rk = np.where(is_root[:, None, None], root_frame[fib], R[kk])
+    ref = ss * np.einsum("sik,sk,sjk->sij", Rk, K[seg], Rk) + ds * c[seg, None, None] * np.eye(3)
+    np.testing.assert_allclose(C, ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+    if with_u:
+        np.testing.assert_array_equal(w0, u[seg, 3:] - np.where(is_root[:, None], 0.0, u[kk, 3:]))
+    else:
+        np.testing.assert_array_equal(w0, 0.0)
