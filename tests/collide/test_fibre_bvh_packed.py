@@ -181,3 +181,23 @@ def test_refit_to_moved_fibres_with_new_radii_finds_the_brute_force_contact_set(
         bvh.refit_fibres(other)
     with pytest.raises(ParameterError, match="FibreSet"):
         bvh.refit_fibres(f.nodes)
+
+
+def test_chunk_filter_keeps_exactly_the_pairs_it_moves_to_the_front(references):
+    """self_contact_pairs(chunk_filter=…) applies the filter to every worker's pairs: the result is the
+    unfiltered contact set restricted to the pairs the filter kept (here: those whose first segment is even)."""
+    f, pairs, params = references["random"]
+
+    def even_first(p, q):
+        keep = p[:, 0] % 2 == 0
+        n = int(keep.sum())
+        p[:n], q[:n] = p[keep].copy(), q[keep].copy()
+        return n
+
+    for threads in (1, 2):
+        bvh = PackedFibreBVH(f, 4, threads=threads)
+        got, got_params = bvh.self_contact_pairs(chunk_filter=even_first)
+        mine = pairs[:, 0] % 2 == 0
+        assert 0 < mine.sum() < len(pairs)
+        np.testing.assert_array_equal(got, pairs[mine])
+        np.testing.assert_array_equal(got_params, params[mine])

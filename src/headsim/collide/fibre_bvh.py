@@ -569,9 +569,12 @@ class PackedFibreBVH(FibreBVH):
         b = self.nbox[inner, :6].astype(np.float64)
         return float((b[:, 3:] - b[:, :3]).sum())
 
-    def self_contact_pairs(self, mode: str = "all", *, sort: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def self_contact_pairs(self, mode: str = "all", *, sort: bool = True,
+                           chunk_filter=None) -> tuple[np.ndarray, np.ndarray]:
         """Colliding segment pairs (as :meth:`FibreBVH.self_contact_pairs`: sorted unless ``sort=False``, a < b;
-        params s, t)."""
+        params s, t). ``chunk_filter``: a callable (pairs, params) → the number n of pairs to keep, which it has
+        moved to the front of both arrays; applied to every worker's pairs in that worker (so it should release
+        the GIL), before the chunks are joined (mode "all" only)."""
         if mode not in ("all", "first"):
             raise ParameterError(f"mode must be 'all' or 'first', got {mode!r}")
         t0 = time.perf_counter()
@@ -579,8 +582,12 @@ class PackedFibreBVH(FibreBVH):
         counters = np.zeros(T.N_COUNTERS, np.int64)
 
         def run(tasks, first_only, c):
-            return P.traverse_packed(tasks, self.nbox, self.nbox.view(np.int32), self.leaf_boxes, self.leaf_first,
-                                     self.sid, self.seg64, first_only, c)
+            pairs, params = P.traverse_packed(tasks, self.nbox, self.nbox.view(np.int32), self.leaf_boxes,
+                                              self.leaf_first, self.sid, self.seg64, first_only, c)
+            if chunk_filter is not None and not first_only:
+                n = int(chunk_filter(pairs, params))
+                pairs, params = pairs[:n], params[:n]
+            return pairs, params
 
         if mode == "first" or self.threads <= 1 or self.n_nodes < 64:
             pairs, params = run(np.zeros((1, 2), np.int64), mode == "first", counters)

@@ -1484,19 +1484,28 @@ class ChainSolver:
                 # the others, as it does the pairs of the first band), without a tree
                 pairs, params = subset_contact_pairs(fs, grown)
             else:
-                if model.n_segments >= o.parallel_threshold:
-                    self._bvh = self._packed_tree(fs, refit=old_speed is None)
-                else:
-                    self._bvh = FibreBVH(fs, "aabb", "spatial", threads=1)
                 # unsorted pairs: one fused pass orders them by (a, b), drops the joint copies and writes the
                 # rows (KP.detect_rows; the same rows in the same order as the sort → duplicate filter → rows
                 # kernels)
-                pairs, params = self._bvh.self_contact_pairs(sort=False)
+                if model.n_segments >= o.parallel_threshold:
+                    self._bvh = self._packed_tree(fs, refit=old_speed is None)
+                    # the pairs the fused pass would drop (separating, outside the band) are dropped in the
+                    # query's workers (KP.drop_pairs_without_rows: the same rows; the ringlet start's 2.0 M pairs
+                    # became 1.0 M)
+                    keep = (np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r, np.ascontiguousarray(spd, np.float64),
+                            float(o.contact_band), float(margin), float(dt),
+                            uu_all if uu_all is not None else np.zeros((0, 6)), CLOSING_MARGIN_FACTOR,
+                            self._pair_mark(), smooth)
+                    pairs, params = self._bvh.self_contact_pairs(
+                        sort=False, chunk_filter=lambda p, q: KP.drop_pairs_without_rows(p, q, *keep))
+                else:
+                    self._bvh = FibreBVH(fs, "aabb", "spatial", threads=1)
+                    pairs, params = self._bvh.self_contact_pairs(sort=False)
             if len(pairs):
                 P = len(pairs)
                 S = model.n_segments
                 coupled = o.contact_coupling == "coupled"
-                mark = (2 if o.separating_candidates else 1) if coupled else 0
+                mark = self._pair_mark()
                 # coupled mode: the fibre rows are written behind the obstacle rows into the arrays of the whole
                 # row set (one copy less of ≈ 2 M rows on the reference scene than a concatenation, 0.3–0.4 s)
                 n0 = sum(len(p.body) for p in parts) if coupled else 0
@@ -1561,6 +1570,12 @@ class ChainSolver:
             return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
                          np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0, bool))
         return _Rows(*[np.concatenate([getattr(p, k) for p in parts]) for k in _Rows.__dataclass_fields__])
+
+    def _pair_mark(self) -> int:
+        """The row kernels' ``mark_tight``: 0 per-body mode (every pair a row), 1 coupled (rows and candidates),
+        2 coupled with ``separating_candidates`` (separating penetrations kept as candidates)."""
+        o = self.options
+        return (2 if o.separating_candidates else 1) if o.contact_coupling == "coupled" else 0
 
     def _packed_tree(self, fs, refit: bool):
         """The packed tree of the fibre-pair detection for the fibre set ``fs`` (capsules grown to the detection

@@ -88,6 +88,35 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
     return True, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn
 
 
+@njit(cache=True, nogil=True)
+def drop_pairs_without_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
+                            mark_tight, smooth):
+    """Compact (in place, returning their number) the closest-point pairs (P, 2) and params (P, 2) of one
+    detection chunk to the ones :func:`_detect_rows_impl` may use: those :func:`_pair_geometry` keeps (within
+    the detection band; not separating faster than ``smooth``, except a separating penetration with
+    ``mark_tight`` = 2), and every pair whose closest point lies within its radius of a segment's outer end
+    (the joint-duplicate test looks those up: see :func:`_joint_duplicate`). The pairs a detection pass
+    then writes as rows, candidates or reserve pairs are the same, in the same order (the pass orders the
+    pairs by (a, b)); on the reference scene half the pairs are separating ones, whose sorting this saves.
+    No gil: runs in the tree query's worker threads."""
+    have_u = u.shape[0] > 0
+    n = 0
+    for q in range(pairs.shape[0]):
+        a = pairs[q, 0]
+        b = pairs[q, 1]
+        keep = ((1.0 - params[q, 0]) * 2 * half[a] <= radius[a]) or ((1.0 - params[q, 1]) * 2 * half[b] <= radius[b])
+        if not keep:
+            keep = _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
+                                  closing_factor, mark_tight, smooth)[0]
+        if keep:
+            pairs[n, 0] = a
+            pairs[n, 1] = b
+            params[n, 0] = params[q, 0]
+            params[n, 1] = params[q, 1]
+            n += 1
+    return n
+
+
 @njit(cache=True, inline="always")
 def _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, a_out, b_out, n_out, la_out, lb_out,
                gap_out, tight_out):
