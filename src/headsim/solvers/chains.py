@@ -1321,7 +1321,11 @@ def _unique_joint_contacts(pairs: np.ndarray, params: np.ndarray, model: ChainMo
     (the joint gap): as separate rows they are redundant (a singular Delassus block, on which projected
     Gauss–Seidel drifts) and, with their different gaps, contradictory. Keep the copy on the inner
     segment of each joint (s − 1). "At the joint": both closest points within one fibre radius of it
-    (segments bend at the joint and the joint gap opens slightly, so the parameters are not exactly 0, 1)."""
+    (segments bend at the joint and the joint gap opens slightly, so the parameters are not exactly 0, 1).
+    The pairs are the ones :func:`~headsim.solvers._kernels.chains_pairs.drop_pairs_without_rows` kept (in the
+    band, not separating), so a copy is dropped only where the copy it defers to is a row (before issue 10's
+    sixteenth session the copy on s was dropped also where the one on s − 1 was itself dropped: a contact on a
+    joint that only segment s saw within its band had no row)."""
     if not len(pairs):
         return np.zeros(0, bool)
     drop = np.empty(len(pairs), np.bool_)
@@ -1479,28 +1483,33 @@ class ChainSolver:
             # segments: 18.6 ms vs 7.7 ms per step, its refit and thread pool dominate), which keep the AS
             # tree, queried on one thread
             grown = None if old_speed is None else np.flatnonzero(spd > old_speed)
+            # the pairs without rows (separating, outside the band) are dropped before the rows are built
+            # (KP.drop_pairs_without_rows; in the packed query's workers): they are neither joined nor sorted, and
+            # a joint copy is one of a kept pair
+            keep = (np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r, np.ascontiguousarray(spd, np.float64),
+                    float(o.contact_band), float(margin), float(dt),
+                    uu_all if uu_all is not None else np.zeros((0, 6)), CLOSING_MARGIN_FACTOR, self._pair_mark(),
+                    smooth)
+            packed = model.n_segments >= o.parallel_threshold
             if grown is not None and len(grown) <= SUBSET_QUERY_FRACTION * model.n_segments:
                 # a band widened for a few segments: only the pairs that involve them can be new (the kernel drops
                 # the others, as it does the pairs of the first band), without a tree
                 pairs, params = subset_contact_pairs(fs, grown)
-            else:
+                packed = False
+            elif packed:
                 # unsorted pairs: one fused pass orders them by (a, b), drops the joint copies and writes the
                 # rows (KP.detect_rows; the same rows in the same order as the sort → duplicate filter → rows
                 # kernels)
-                if model.n_segments >= o.parallel_threshold:
-                    self._bvh = self._packed_tree(fs, refit=old_speed is None)
-                    # the pairs the fused pass would drop (separating, outside the band) are dropped in the
-                    # query's workers (KP.drop_pairs_without_rows: the same rows; the ringlet start's 2.0 M pairs
-                    # became 1.0 M)
-                    keep = (np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r, np.ascontiguousarray(spd, np.float64),
-                            float(o.contact_band), float(margin), float(dt),
-                            uu_all if uu_all is not None else np.zeros((0, 6)), CLOSING_MARGIN_FACTOR,
-                            self._pair_mark(), smooth)
-                    pairs, params = self._bvh.self_contact_pairs(
-                        sort=False, chunk_filter=lambda p, q: KP.drop_pairs_without_rows(p, q, *keep))
-                else:
-                    self._bvh = FibreBVH(fs, "aabb", "spatial", threads=1)
-                    pairs, params = self._bvh.self_contact_pairs(sort=False)
+                self._bvh = self._packed_tree(fs, refit=old_speed is None)
+                pairs, params = self._bvh.self_contact_pairs(
+                    sort=False, chunk_filter=lambda p, q: KP.drop_pairs_without_rows(p, q, *keep))
+            else:
+                self._bvh = FibreBVH(fs, "aabb", "spatial", threads=1)
+                pairs, params = self._bvh.self_contact_pairs(sort=False)
+            if not packed:
+                pairs, params = np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(params, np.float64)
+                n_kept = KP.drop_pairs_without_rows(pairs, params, *keep)
+                pairs, params = pairs[:n_kept], params[:n_kept]
             if len(pairs):
                 P = len(pairs)
                 S = model.n_segments

@@ -92,25 +92,20 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
 def drop_pairs_without_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
                             mark_tight, smooth):
     """Compact (in place, returning their number) the closest-point pairs (P, 2) and params (P, 2) of one
-    detection chunk to the ones :func:`_detect_rows_impl` may use: those :func:`_pair_geometry` keeps (within
-    the detection band; not separating faster than ``smooth``, except a separating penetration with
-    ``mark_tight`` = 2), and every pair whose closest point lies within its radius of a segment's outer end
-    (the joint-duplicate test looks those up: see :func:`_joint_duplicate`). The pairs a detection pass
-    then writes as rows, candidates or reserve pairs are the same, in the same order (the pass orders the
-    pairs by (a, b)); on the reference scene half the pairs are separating ones, whose sorting this saves.
-    No gil: runs in the tree query's worker threads."""
+    detection chunk to the ones :func:`_pair_geometry` keeps (within the detection band; not separating
+    faster than ``smooth``, except a separating penetration with ``mark_tight`` = 2). The detection pass
+    that follows then finds a pair's joint copy (:func:`_joint_duplicate`) among the kept pairs only: a
+    contact at a joint is dropped as the copy of its neighbour's only where that one is kept (the two share
+    the point, its gap and normal, and their velocities differ by the joint's velocity error, so they are
+    kept or dropped alike but at the persistence threshold). On the reference scene ≈ 98 % of the pairs
+    touch a segment end. No gil: runs in the tree query's worker threads."""
     have_u = u.shape[0] > 0
     n = 0
     for q in range(pairs.shape[0]):
-        a = pairs[q, 0]
-        b = pairs[q, 1]
-        keep = ((1.0 - params[q, 0]) * 2 * half[a] <= radius[a]) or ((1.0 - params[q, 1]) * 2 * half[b] <= radius[b])
-        if not keep:
-            keep = _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
-                                  closing_factor, mark_tight, smooth)[0]
-        if keep:
-            pairs[n, 0] = a
-            pairs[n, 1] = b
+        if _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
+                          closing_factor, mark_tight, smooth)[0]:
+            pairs[n, 0] = pairs[q, 0]
+            pairs[n, 1] = pairs[q, 1]
             params[n, 0] = params[q, 0]
             params[n, 1] = params[q, 1]
             n += 1
