@@ -1888,9 +1888,10 @@ class ChainSolver:
             # smaller of ½ g^i and its mid-step gap (so it arrives no faster than g^i/(2Δt) with ½ g^i left, and
             # the next step's mid-step state does not pass through its partner), a penetration is held
             # (velocity solve) and pushed out by its depth at t_i (push-out solve)
-            gaps = np.minimum(gaps, np.where(gaps0 > 0, 0.5 * gaps0, gaps0))
-            slop = self.options.push_out_slop * model.radius[rows.body]
-            gaps_pos = np.where(gaps0 < -slop, gaps0 + slop, np.maximum(gaps, 0.0))
+            mid, gaps, gaps_pos = gaps, np.empty(len(gaps)), np.empty(len(gaps))
+            (KP.end_velocity_gaps_parallel if model.n_segments >= self.options.parallel_threshold
+             else KP.end_velocity_gaps)(mid, np.ascontiguousarray(gaps0), rows.body, model.radius,
+                                        float(self.options.push_out_slop), gaps, gaps_pos)
         return gaps, gaps_pos, gaps_stat
 
     def _reserve_violations(self, model, rows, checks, dq0, dq, endvel, dt, row_vn, rounds, chunks=None,

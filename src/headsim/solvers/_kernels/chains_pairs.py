@@ -315,10 +315,25 @@ def _scatter_kernel_impulses_impl(order, lam_k, fr_k, lam, fr):
         fr[r, 1] = fr_k[q, 1]
 
 
+def _end_velocity_gaps_impl(gaps, gaps0, body, radius, slop_fraction, out, out_pos):
+    """The gaps of a last pass with ``end_velocity_positions`` (:meth:`headsim.solvers.chains.ChainSolver._pass_gaps`),
+    m: out = min(g, ½ g⁰) for g⁰ > 0 else min(g, g⁰) (velocity solve; g the mid-step gap, g⁰ the gap at t_i),
+    out_pos = g⁰ + slop where g⁰ < −slop, else max(out, 0) (push-out solve; slop = slop_fraction × the body's
+    radius)."""
+    for i in prange(gaps.shape[0]):
+        g0 = gaps0[i]
+        lim = 0.5 * g0 if g0 > 0 else g0
+        g = min(gaps[i], lim)
+        out[i] = g
+        slop = slop_fraction * radius[body[i]]
+        out_pos[i] = g0 + slop if g0 < -slop else max(g, 0.0)
+
+
 # per-row passes: serial, and ``prange`` versions for the ≈ 2–7 M rows and candidates of the reference scene
 warm_start_rows, warm_start_rows_parallel = serial_and_parallel(_warm_start_rows_impl)
 kernel_row_inputs, kernel_row_inputs_parallel = serial_and_parallel(_kernel_row_inputs_impl)
 scatter_kernel_impulses, scatter_kernel_impulses_parallel = serial_and_parallel(_scatter_kernel_impulses_impl)
+end_velocity_gaps, end_velocity_gaps_parallel = serial_and_parallel(_end_velocity_gaps_impl)
 
 
 def _gather_rows_impl(order, body, partner, normal, lever, partner_lever, ob, op, on, ol, opl):
