@@ -255,6 +255,38 @@ unchanged ringlet start at 1.31–1.41 s per step):
   With the per-row band, the ringlet start's state changed: 7,645 contacts, max penetration 41.8 µm (44.2 µm before), kinetic energy
   5.7312e-05 J, largest solve 60 sweeps (49).
 * Goal 0.2 s: still ≈ 4–5× off on the falling strand and ≈ 7× on the ringlet start.
+
+Issue 10, sixteenth session (session start = commit 099a0b0's tree against the final one, same venv and script,
+alternating runs, machine otherwise idle):
+
+* **Detection.** The widened band's subset query bins the query segments in a uniform grid (the same pairs,
+  1.5–3× faster than the former slab sweep: 0.12 → 0.06 s for 1,960 query segments); the fused detection pass
+  builds its radix histogram per chunk row and with fewer chunks for small calls; the packed fibre tree is
+  refitted across steps (``PackedFibreBVH.refit_fibres``; rebuilt after 10 steps or 30 % box growth) instead of
+  built every step (24 ms); the pairs without rows (separating, outside the band) are dropped in the query's
+  worker threads (``chunk_filter``), so they are neither joined nor sorted (ringlet start 2.0–2.5 M → 1.4–1.7 M
+  pairs). Since then a joint copy of a contact is dropped only where the copy it defers to is a row.
+* **NumPy glue.** The per-segment frame products, the joint rows and the end-velocity gaps in Numba passes
+  (``headsim.solvers._kernels.chains_frames``, ``KP.end_velocity_gaps``).
+* Tried and left out: the earlier harmonisation pass's velocity solve capped at 10 sweeps (contacts 0.65–0.74 →
+  0.57 s per step at the ringlet start, but max penetration 38 → 42 µm); one harmonisation pass (1.52 → 1.07 s
+  per step, but max penetration 38 → 64 µm); the Lipschitz bound's block maxima from SciPy's maximum filter (the
+  kernel 12 → 3 ms per call, the filters cost as much).
+
+  | scene (command or state) | start of session | final |
+  |---|---|---|
+  | ringlet start, ``--settle 3 --steps 3 --coupled-only --geometry former`` | 1.48 / 1.56 s (detection 0.70 / 0.78, contacts 0.64 / 0.66) | **1.17 / 1.17 s** (detection 0.49, contacts 0.57 / 0.58) |
+  | derived geometry t = 5 ms (no contact yet), ``--settle 3 --steps 3 --coupled-only`` | 0.47 / 0.51 s | **0.36 / 0.38 s** |
+  | falling, t = 62–66 ms (5 steps from a saved t = 60 ms state) | 0.78–0.85 s | 0.66–0.84 s |
+  | landing, t = 86–88 ms (from a saved t = 85 ms state) | 12.0 / 8.1 / 7.7 s (detection 1.35–1.52 s at 87–88 ms) | 11.4 / 8.0 / 7.1 s (detection 1.00–1.04 s) |
+  | reduced, ``--fibres 120 --segments 50 --settle 5 --steps 2 --loop-steps 1`` | coupled 0.086 s, loop 1.58 s | coupled 0.071 s, loop 1.80 s (ratio 0.04) |
+
+  States: the ringlet start's steps are the former ones to rounding until the joint-copy change (7,644 active
+  contacts, max penetration 41.9 µm, kinetic energy 5.7312e-05 J, against 7,645, 41.8 µm, 5.7312e-05 J); the
+  landing's contacts 56,299 / 55,709 / 53,154 against 56,297 / 55,749 / 53,122.
+* Goal 0.2 s: ≈ 1.8× off with no contact yet, ≈ 3.5–4× on the falling strand, ≈ 6× at the ringlet start and
+  35–57× while the strand lands (there the contact solves' 3 × 60 Gauss–Seidel sweeps over 200–300 k rows and
+  1.7–2.4 M candidates take 5–6 s of the 7–11 s).
 """
 
 from __future__ import annotations
