@@ -28,6 +28,14 @@ def _cell(x, lo, cell, n):
     return min(max(i, 0), n - 1)
 
 
+@njit(cache=True, inline="always")
+def _cell_range(box, q, lo, cell, dims):
+    """(i0, i1, j0, j1, k0, k1): the grid cells (clamped) that box q of ``box`` (S, 6) overlaps."""
+    return (_cell(box[q, 0], lo[0], cell, dims[0]), _cell(box[q, 3], lo[0], cell, dims[0]),
+            _cell(box[q, 1], lo[1], cell, dims[1]), _cell(box[q, 4], lo[1], cell, dims[1]),
+            _cell(box[q, 2], lo[2], cell, dims[2]), _cell(box[q, 5], lo[2], cell, dims[2]))
+
+
 @njit(cache=True)
 def bin_query_boxes(box, query, lo, cell, dims, cell_start, members):
     """The query segments' boxes (``box`` (S, 6) rows ``query``) binned into a uniform grid (origin lo (3,),
@@ -42,9 +50,7 @@ def bin_query_boxes(box, query, lo, cell, dims, cell_start, members):
             count[c] = cell_start[c]
     for k in range(len(query)):
         q = query[k]
-        i0, i1 = _cell(box[q, 0], lo[0], cell, nx), _cell(box[q, 3], lo[0], cell, nx)
-        j0, j1 = _cell(box[q, 1], lo[1], cell, ny), _cell(box[q, 4], lo[1], cell, ny)
-        k0, k1 = _cell(box[q, 2], lo[2], cell, nz), _cell(box[q, 5], lo[2], cell, nz)
+        i0, i1, j0, j1, k0, k1 = _cell_range(box, q, lo, cell, dims)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 for m in range(k0, k1 + 1):
@@ -75,9 +81,7 @@ def subset_pairs(nodes, start, fibre, radius, box, lo, cell, dims, cell_start, m
         o = counts[b] if write else 0
         if not (box[b, 3] < lo[0] or box[b, 4] < lo[1] or box[b, 5] < lo[2] or box[b, 0] > hx or box[b, 1] > hy
                 or box[b, 2] > hz):
-            i0, i1 = _cell(box[b, 0], lo[0], cell, nx), _cell(box[b, 3], lo[0], cell, nx)
-            j0, j1 = _cell(box[b, 1], lo[1], cell, ny), _cell(box[b, 4], lo[1], cell, ny)
-            k0, k1 = _cell(box[b, 2], lo[2], cell, nz), _cell(box[b, 5], lo[2], cell, nz)
+            i0, i1, j0, j1, k0, k1 = _cell_range(box, b, lo, cell, dims)
             for i in range(i0, i1 + 1):
                 for j in range(j0, j1 + 1):
                     for m in range(k0, k1 + 1):

@@ -557,12 +557,7 @@ class PackedFibreBVH(FibreBVH):
         self.fibres = fibres
         self.nodes = fibres.nodes
         self._slot_radius = np.ascontiguousarray(fibres.radius[self.perm])
-        t0 = time.perf_counter()
-        self._refit()
-        dt = time.perf_counter() - t0
-        self.timings["update"] = dt
-        self._steps_since_rebuild += 1
-        return dt
+        return self.update()
 
     def _quality(self) -> float:
         inner = self.child >= 0
