@@ -971,3 +971,20 @@ def test_log_so3_inverts_the_exponential_map_also_near_pi():
             phi = log_so3(R)
             assert abs(np.linalg.norm(phi) - angle) < 1e-5
             np.testing.assert_allclose(rodrigues(phi), R, atol=1e-5)
+
+
+def test_a_contact_on_a_joint_has_exactly_one_row_when_either_copy_is_kept():
+    """A fibre lying across another one's joint is seen by both segments at the joint (the same point): one row
+    (the inner segment's copy) when both copies are kept; when the inner segment's copy separates (dropped by
+    the persistence filter) and the outer one's does not, the outer one's copy is the row (before issue 10's
+    sixteenth session it was dropped as the copy of a pair that was itself dropped: no row at all)."""
+    h, r, g = 1e-3, 35e-6, 5e-6
+    nodes = np.array([[-2 * h, 0, 0], [0, 0, 0], [2 * h, 0, 0],  # fibre 0: segments 0, 1, joint at the origin
+                      [0, -h, 2 * r + g], [0, h, 2 * r + g]])     # fibre 1: segment 2, across the joint
+    model, state = chain_model_from_polylines(nodes, [0, 3, 5], radius=r)
+    for u_inner, expected in ((0.0, [(0, 2)]), (-1.0, [(1, 2)])):
+        u = np.zeros((3, 6))
+        u[0, 2] = u_inner  # segment 0 leaves the contact at 1 m/s, segment 1 rests on it
+        rows = ChainSolver(ChainOptions())._detect(model.kernel, state.position, state.rotation, 1e-3, (), u,
+                                                   np.zeros((3, 6)))
+        assert list(zip(rows.body.tolist(), rows.partner.tolist())) == expected
