@@ -642,10 +642,9 @@ def subset_contact_pairs(fibres: FibreSet, query) -> tuple[np.ndarray, np.ndarra
     query_idx = np.flatnonzero(is_query).astype(np.int64)
     if not len(query_idx):
         return np.zeros((0, 2), np.int64), np.zeros((0, 2))
-    nodes, start, r = fibres.nodes, fibres.segment_start, fibres.radius
-    p0, p1 = nodes[start], nodes[start + 1]
-    box = np.ascontiguousarray(np.concatenate([np.minimum(p0, p1) - r[:, None], np.maximum(p0, p1) + r[:, None]],
-                                              axis=1))
+    nodes, start, r = fibres.nodes, np.ascontiguousarray(fibres.segment_start), fibres.radius
+    box = np.empty((S, 6))
+    P.segment_boxes(nodes, start, r, box)
     qbox = box[query_idx]
     lo = qbox[:, :3].min(axis=0)
     extent = qbox[:, 3:].max(axis=0) - lo
@@ -661,7 +660,7 @@ def subset_contact_pairs(fibres: FibreSet, query) -> tuple[np.ndarray, np.ndarra
     members = np.empty(max(int(cell_start[-1]), 1), np.int64)
     bin_query_boxes(box, query_idx, lo, cell, dims, cell_start, members)
     counts = np.zeros(S, np.int64)
-    args = (nodes, np.ascontiguousarray(start), np.ascontiguousarray(fibres.segment_fibre), r, box, lo, cell, dims,
+    args = (nodes, start, np.ascontiguousarray(fibres.segment_fibre), r, box, lo, cell, dims,
             cell_start, members, is_query)
     # the box pairs counted, the capsule tests written behind their offsets, then the hits compacted
     subset_pairs(*args, counts, np.zeros((0, 2), np.int64), np.zeros((0, 2)), False)

@@ -1486,10 +1486,11 @@ class ChainSolver:
             # the pairs without rows (separating, outside the band) are dropped before the rows are built
             # (KP.drop_pairs_without_rows; in the packed query's workers): they are neither joined nor sorted, and
             # a joint copy is one of a kept pair
-            keep = (np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r, np.ascontiguousarray(spd, np.float64),
-                    float(o.contact_band), float(margin), float(dt),
-                    uu_all if uu_all is not None else np.zeros((0, 6)), CLOSING_MARGIN_FACTOR, self._pair_mark(),
-                    smooth)
+            uu = uu_all if uu_all is not None else np.zeros((0, 6))
+            geo = (np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r)
+            band_args = (np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin), float(dt), uu,
+                         CLOSING_MARGIN_FACTOR, self._pair_mark(), smooth)
+            keep = geo + band_args  # the arguments of _pair_geometry's keep rule
             packed = model.n_segments >= o.parallel_threshold
             if grown is not None and len(grown) <= SUBSET_QUERY_FRACTION * model.n_segments:
                 # a band widened for a few segments: only the pairs that involve them can be new (the kernel drops
@@ -1514,7 +1515,6 @@ class ChainSolver:
                 P = len(pairs)
                 S = model.n_segments
                 coupled = o.contact_coupling == "coupled"
-                mark = self._pair_mark()
                 # coupled mode: the fibre rows are written behind the obstacle rows into the arrays of the whole
                 # row set (one copy less of ≈ 2 M rows on the reference scene than a concatenation, 0.3–0.4 s)
                 n0 = sum(len(p.body) for p in parts) if coupled else 0
@@ -1524,12 +1524,9 @@ class ChainSolver:
                 a, b, n, la, lb, gap, tight, key = (full.body[n0:], full.partner[n0:], full.normal[n0:],
                                                     full.lever[n0:], full.partner_lever[n0:], full.gap[n0:],
                                                     full.tight[n0:], full.key[n0:])
-                uu = uu_all if uu_all is not None else np.zeros((0, 6))
                 pairs = np.ascontiguousarray(pairs, np.int64)
                 params = np.ascontiguousarray(params, np.float64)
-                geo = (np.ascontiguousarray(x), np.ascontiguousarray(d3), h, r)
-                rest = (np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin), float(dt), uu,
-                        CLOSING_MARGIN_FACTOR, mark, smooth, a, b, n, la, lb, gap, tight)
+                rest = band_args + (a, b, n, la, lb, gap, tight)
                 fused = KP.detect_rows_parallel if S >= o.parallel_threshold else KP.detect_rows
                 # candidate_reserve: candidates whose slack exceeds their bodies' allowances stay in reserve
                 allow = self._allow if (coupled and uu_all is not None and self._allow is not None) else np.zeros(0)
@@ -1596,7 +1593,6 @@ class ChainSolver:
 
         tree = self._bvh
         if (refit and isinstance(tree, PackedFibreBVH) and tree._steps_since_rebuild + 1 < TREE_REFIT_STEPS
-                and tree.fibres.n_segments == fs.n_segments
                 and np.array_equal(tree.fibres.fibre_offsets, fs.fibre_offsets)):
             tree.refit_fibres(fs)
             if tree._quality() <= TREE_REFIT_QUALITY * tree._quality_ref:
