@@ -582,37 +582,109 @@ def _pgs(nc, A, bvec, lam, max_iter, tol):
     return it
 
 
+@njit(cache=True, inline="always")
+def _edge_minimiser(B, c, px, py, i, m):
+    """(q, fx, fy): the minimiser of q(f) = ½ fᵀBf + fᵀc on the polygon edge from vertex i to vertex i + 1
+    (mod m) of (px, py) (the clamped one of its line) and its value."""
+    j = i + 1 if i + 1 < m else 0
+    ex, ey = px[j] - px[i], py[j] - py[i]
+    gx = B[0, 0] * px[i] + B[0, 1] * py[i] + c[0]
+    gy = B[1, 0] * px[i] + B[1, 1] * py[i] + c[1]
+    eBe = ex * (B[0, 0] * ex + B[0, 1] * ey) + ey * (B[1, 0] * ex + B[1, 1] * ey)
+    t = 0.0
+    if eBe > 0:
+        t = -(ex * gx + ey * gy) / eBe
+        t = min(1.0, max(0.0, t))
+    qx, qy = px[i] + t * ex, py[i] + t * ey
+    q = 0.5 * (qx * (B[0, 0] * qx + B[0, 1] * qy) + qy * (B[1, 0] * qx + B[1, 1] * qy)) + qx * c[0] + qy * c[1]
+    return q, qx, qy
+
+
+@njit(cache=True, inline="always")
+def _kkt_edge(B, c, px, py, i, m):
+    """Walk along the polygon's boundary from edge i to the edge or vertex where q(f) = ½ fᵀBf + fᵀc meets
+    the KKT conditions of its minimisation over the polygon (see :func:`_polygon_qp`): the index of an edge
+    holding that point, or −1 where the walk would turn back or passes m edges (rounding at a vertex)."""
+    came = 0
+    for _ in range(m):
+        j = i + 1 if i + 1 < m else 0
+        ex, ey = px[j] - px[i], py[j] - py[i]
+        gx = B[0, 0] * px[i] + B[0, 1] * py[i] + c[0]
+        gy = B[1, 0] * px[i] + B[1, 1] * py[i] + c[1]
+        bex = B[0, 0] * ex + B[0, 1] * ey
+        bey = B[1, 0] * ex + B[1, 1] * ey
+        eBe = ex * bex + ey * bey
+        t = -(ex * gx + ey * gy) / eBe if eBe > 0 else 0.0
+        if t > 0.0 and t < 1.0:  # inside the edge: optimal if the gradient there opposes the outward normal
+            if (gx + t * bex) * ey - (gy + t * bey) * ex <= 0.0:
+                return i
+            return -1
+        if t <= 0.0:  # at vertex i: optimal unless the previous edge descends towards it
+            h = i - 1 if i > 0 else m - 1
+            if gx * (px[i] - px[h]) + gy * (py[i] - py[h]) <= 0.0:
+                return i
+            if came == 1:
+                return -1
+            i = h
+            came = -1
+        else:  # at vertex j: optimal unless the next edge descends away from it
+            k = j + 1 if j + 1 < m else 0
+            if (gx + bex) * (px[k] - px[j]) + (gy + bey) * (py[k] - py[j]) >= 0.0:
+                return i
+            if came == -1:
+                return -1
+            i = j
+            came = 1
+    return -1
+
+
 @njit(cache=True)
 def _polygon_qp(B, c, px, py, m):
     """min ½ fᵀBf + fᵀc over the convex polygon with CCW vertices (px, py) containing the origin
-    (the friction set λ·conv{μ_β d_β}, V-representation of eq. 8.51). Exact: interior minimiser or
-    the best clamped minimiser over the edges."""
+    (the friction set λ·conv{μ_β d_β}, V-representation of eq. 8.51). Exact: the interior minimiser, or
+    the best clamped minimiser over the edges (lowest q, the first edge on ties; :func:`_boundary_qp`).
+    Kept small (the boundary case in its own function), so that the compiler inlines it into the sweeps."""
     det = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
     fx = -(B[1, 1] * c[0] - B[0, 1] * c[1]) / det
     fy = -(-B[1, 0] * c[0] + B[0, 0] * c[1]) / det
-    inside = True
     for i in range(m):
         j = (i + 1) % m
         ex, ey = px[j] - px[i], py[j] - py[i]
         if ex * (fy - py[i]) - ey * (fx - px[i]) < 0.0:
-            inside = False
-            break
-    if inside:
-        return fx, fy
+            return _boundary_qp(B, c, px, py, m, i)
+    return fx, fy
+
+
+@njit(cache=True)
+def _boundary_qp(B, c, px, py, m, first):
+    """:func:`_polygon_qp` where the unconstrained minimiser f* = −B⁻¹c violates edge ``first`` (the first
+    such edge): the best clamped minimiser over the edges (lowest q, the first edge on ties), without
+    comparing all m edges. A walk along the boundary from edge ``first`` moves to the neighbour that
+    descends until a point meets the KKT conditions of the convex problem (inside an edge: the gradient
+    Bf + c there opposes the edge's outward normal; at a vertex: neither edge descends into the polygon),
+    which makes it the unique minimiser (:func:`_kkt_edge`). Only that edge and its two neighbours are then
+    compared (they hold every point near it), so the result is the full comparison's to the last bit except
+    on exact ties between farther edges; a walk that fails (rounding at a vertex) compares all m edges."""
+    e = _kkt_edge(B, c, px, py, first, m)
     best = np.inf
     bx, by = 0.0, 0.0
-    for i in range(m):
-        j = (i + 1) % m
-        ex, ey = px[j] - px[i], py[j] - py[i]
-        gx = B[0, 0] * px[i] + B[0, 1] * py[i] + c[0]
-        gy = B[1, 0] * px[i] + B[1, 1] * py[i] + c[1]
-        eBe = ex * (B[0, 0] * ex + B[0, 1] * ey) + ey * (B[1, 0] * ex + B[1, 1] * ey)
-        t = 0.0
-        if eBe > 0:
-            t = -(ex * gx + ey * gy) / eBe
-            t = min(1.0, max(0.0, t))
-        qx, qy = px[i] + t * ex, py[i] + t * ey
-        q = 0.5 * (qx * (B[0, 0] * qx + B[0, 1] * qy) + qy * (B[1, 0] * qx + B[1, 1] * qy)) + qx * c[0] + qy * c[1]
+    if e < 0 or m <= 3:
+        for i in range(m):
+            q, qx, qy = _edge_minimiser(B, c, px, py, i, m)
+            if q < best:
+                best = q
+                bx, by = qx, qy
+        return bx, by
+    # edges e − 1, e, e + 1 (mod m) in index order (0 before m − 2 and m − 1 where they wrap)
+    if e == 0:
+        a0, a1, a2 = 0, 1, m - 1
+    elif e == m - 1:
+        a0, a1, a2 = 0, m - 2, m - 1
+    else:
+        a0, a1, a2 = e - 1, e, e + 1
+    for r in range(3):
+        i = a0 if r == 0 else (a1 if r == 1 else a2)
+        q, qx, qy = _edge_minimiser(B, c, px, py, i, m)
         if q < best:
             best = q
             bx, by = qx, qy
