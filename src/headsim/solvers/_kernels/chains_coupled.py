@@ -271,13 +271,13 @@ def _segment_rows(rows, n, dom, n_domains, out, off):
 
 
 @njit(cache=True, inline="always")
-def _extrapolation_dot(listed, lo, cnt, lam, lam_prev, lam_start, W, n0, pslot):
-    """Σ W_c (λ_c − y_c)(y_c − λ_{c,k−1}) over the listed rows listed[lo:lo + cnt] (the restart test of
-    the Nesterov extrapolation, see ``momentum`` of :func:`_coupled_iterate_impl`; slots: :func:`_slot`)."""
+def _listed_sum(term, lo, cnt):
+    """Σ term[lo:lo + cnt] in order: the restart test Σ_c W_c (λ_c − y_c)(y_c − λ_{c,k−1}) of the Nesterov
+    extrapolation over one segment of the listed rows (see ``momentum`` of :func:`_coupled_iterate_impl`),
+    from the terms the sweep wrote at the rows' positions in ``listed``."""
     dot = 0.0
     for z in range(cnt):
-        c = listed[lo + z]
-        dot += (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[_slot(c, n0, pslot), 0, 0]
+        dot += term[lo + z]
     return dot
 
 
@@ -561,6 +561,9 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             lam_start[c] = lam[c]
     k_mom = 0
     ext_dot = np.zeros(nd + 1)
+    # the restart test's terms W_c (λ_c − y_c)(y_c − λ_{c,k−1}) of the listed rows, at their positions in
+    # ``listed``, written when a sweep visits them (their λ_c is then final for the sweep)
+    ext_term = np.empty(nc if momentum > 0.0 else 0)
     change = 0.0
     by_body = rho0.shape[0] == u.shape[0]  # the bodies' lever bounds are known: per-row slack bands
     band_body = np.zeros(u.shape[0] if by_body else 0)
@@ -618,17 +621,23 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                     new = lam[c] + (target[c] - s) / W[sc, 0, 0]
                     if new < 0.0:
                         new = 0.0
+                    pos = qq  # the row's position in ``listed`` (a full sweep lists it, if at all, at lo + n_new)
                     if new == 0.0 and lam[c] == 0.0 and fr[c, 0] == 0.0 and fr[c, 1] == 0.0:
                         if full:
+                            pos = -1
                             band = slack_band
                             if by_body:
                                 band = max(10.0 * tol, BAND_FACTOR * (band_body[a] + (band_body[b] if b >= 0 else 0.0)))
                             if s - target[c] <= band:
-                                listed[lo + n_new] = c
+                                pos = lo + n_new
+                                listed[pos] = c
                                 n_new += 1
+                        if momentum > 0.0 and pos >= 0:
+                            ext_term[pos] = (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[sc, 0, 0]
                         continue  # bound holds, no impulse: the visit changes nothing
                     if full:
-                        listed[lo + n_new] = c
+                        pos = lo + n_new
+                        listed[pos] = c
                         n_new += 1
                     for k in range(1, 3):
                         s = 0.0
@@ -649,6 +658,8 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                             vr[k] += W[sc, k, 0] * dl
                         seg_ch = max(seg_ch, abs(dl) * W[sc, 0, 0])
                     lam[c] = new
+                    if momentum > 0.0:
+                        ext_term[pos] = (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[sc, 0, 0]
                     if m < 3:
                         continue
                     Bl[0, 0] = W[sc, 1, 1]
@@ -794,11 +805,12 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             # changed (the listed rows: a full sweep lists every row it changed, a partial sweep visits only
             # them); k: sweeps since the last restart. The domains' rows in parallel (they share no body), then
             # the cross rows: every body's twist receives its rows' changes in the serial order.
-            for dd in prange(nd + 1):
-                ext_dot[dd] = _extrapolation_dot(listed, off[dd], lcnt[dd], lam, lam_prev, lam_start, W, n0, pslot)
             dot = 0.0
-            for d in range(nd + 1):
-                dot += ext_dot[d]
+            if n_prom == 0:  # (promotions restart, and moved the listed rows)
+                for dd in prange(nd + 1):
+                    ext_dot[dd] = _listed_sum(ext_term, off[dd], lcnt[dd])
+                for d in range(nd + 1):
+                    dot += ext_dot[d]
             k_mom = 0 if (n_prom > 0 or dot < 0.0) else k_mom + 1
             beta = momentum * (k_mom - 1.0) / (k_mom + 2.0) if k_mom > 1 else 0.0  # 0: restarted, nothing moves
             for dd in prange(nd):
