@@ -287,6 +287,43 @@ alternating runs, machine otherwise idle):
 * Goal 0.2 s: ≈ 1.8× off with no contact yet, ≈ 3.5–4× on the falling strand, ≈ 6× at the ringlet start and
   35–57× while the strand lands (there the contact solves' 3 × 60 Gauss–Seidel sweeps over 200–300 k rows and
   1.7–2.4 M candidates take 5–6 s of the 7–11 s).
+
+Issue 10, seventeenth session (session start = commit 730dd0e's tree against the final one, same venv and script,
+alternating runs):
+
+* **Contact solve.** The Nesterov extrapolation of the coupled solve restarted on every full sweep that promoted
+  candidates. On the landing strand nearly every full sweep promotes some (25–111 k promotions per solve, most of
+  them ending without impulse), so the solves ran almost without extrapolation. Now only the gradient test
+  restarts. On the captured t = 87 ms solves the summed bound violation Σ max(0, target − n·Δu) after their 60
+  sweeps fell from 247–272 to 60–83 m/s (plain Gauss–Seidel: 340–359 m/s). Behaviour change: the states differ.
+* **Iteration kernel, bitwise the same iterates.** The friction polygon's boundary case walks along the boundary
+  to the KKT point and compares only that edge and its neighbours, instead of all 16 edges; promoted candidates'
+  Jacobian rows go to consecutive slots instead of scattered ones (each scattered first write was a page fault:
+  0.085 s of a 2.2 s serial solve); the restart test's terms are written by the sweep that visits the row. The
+  captured t = 87 ms landing solve: 1.29–1.41 → 1.09–1.14 s (alternating runs), the same impulses and twists to
+  the last bit.
+* Tried and left out: promoting the previous solve's candidates with impulse at the start of the next one (only
+  781 / 5,650 of the 111 k promotions still carried impulse, 1.73 → 1.52 s for the push-out solve; not kept once
+  the restart fix made promotions cheap); building the promoted rows in parallel (no measurable gain); a momentum
+  factor 1.3 (no better than 1.0); the dot products of the row update as pairwise sums (≤ 4 %, not bitwise).
+
+  | scene (command or state) | start of session | final |
+  |---|---|---|
+  | ringlet start, ``--settle 3 --steps 3 --coupled-only --geometry former`` | 1.23 / 1.31 s (contacts 0.62 / 0.70) | **1.10 / 1.14 s** (contacts 0.48 / 0.53) |
+  | derived geometry t = 5 ms (no contact yet), ``--settle 3 --steps 3 --coupled-only`` | 0.38 s | 0.38 s |
+  | falling, t = 62–65 ms (steps from a saved t = 60 ms state) | 0.73–0.80 s | 0.70–0.71 s |
+  | landing, t = 86 / 87 / 88 ms (from a saved t = 85 ms state) | 12.0–12.8 / 8.6 / 7.7 s | **9.9 / 5.4 / 4.9 s** |
+  | reduced, ``--fibres 120 --segments 50 --settle 5 --steps 2 --loop-steps 1`` | coupled 0.071 s | coupled 0.079 s, loop 1.75 s (ratio 0.05) |
+
+  States: ringlet start 6,634 active contacts (before 7,644), max penetration 18.5 µm (before 41.9 µm), kinetic
+  energy 5.7336e-05 J (5.7312e-05 J), largest solve 46 sweeps (60); landing t = 86 / 87 / 88 ms 39,715 / 32,379 /
+  29,909 active contacts (before 56,299 / 55,709 / 53,154; better-converged impulses sit on fewer contacts), max
+  penetration 70 / 72 / 61 µm (70 / 67 / 69 µm). The falling strand's states are the former ones to the printed
+  digits.
+* Goal 0.2 s: ≈ 1.9× off with no contact yet, ≈ 3.5× on the falling strand, ≈ 5.5× at the ringlet start and
+  25–50× while the strand lands. The landing solves still end at their sweep cap, now with a 3–4× smaller
+  residual: a smaller cap would trade that accuracy for time (``--set qp_iterations=20`` at the ringlet start:
+  0.47 s contacts, 20.3 µm penetration; not made the default).
 """
 
 from __future__ import annotations
