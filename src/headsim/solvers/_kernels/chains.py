@@ -583,14 +583,23 @@ def _pgs(nc, A, bvec, lam, max_iter, tol):
 
 
 @njit(cache=True, inline="always")
-def _edge_minimiser(B, c, px, py, i, m):
-    """(q, fx, fy): the minimiser of q(f) = ½ fᵀBf + fᵀc on the polygon edge from vertex i to vertex i + 1
-    (mod m) of (px, py) (the clamped one of its line) and its value."""
+def _edge_terms(B, c, px, py, i, m):
+    """(j, ex, ey, gx, gy, bex, bey, eBe) of the polygon edge from vertex i to vertex j = i + 1 (mod m) of
+    (px, py) for q(f) = ½ fᵀBf + fᵀc: the edge e, the gradient g = B v_i + c at its start, B e and eᵀBe."""
     j = i + 1 if i + 1 < m else 0
     ex, ey = px[j] - px[i], py[j] - py[i]
     gx = B[0, 0] * px[i] + B[0, 1] * py[i] + c[0]
     gy = B[1, 0] * px[i] + B[1, 1] * py[i] + c[1]
-    eBe = ex * (B[0, 0] * ex + B[0, 1] * ey) + ey * (B[1, 0] * ex + B[1, 1] * ey)
+    bex = B[0, 0] * ex + B[0, 1] * ey
+    bey = B[1, 0] * ex + B[1, 1] * ey
+    return j, ex, ey, gx, gy, bex, bey, ex * bex + ey * bey
+
+
+@njit(cache=True, inline="always")
+def _edge_minimiser(B, c, px, py, i, m):
+    """(q, fx, fy): the minimiser of q(f) = ½ fᵀBf + fᵀc on the polygon edge from vertex i to vertex i + 1
+    (mod m) of (px, py) (the clamped one of its line) and its value."""
+    _, ex, ey, gx, gy, _, _, eBe = _edge_terms(B, c, px, py, i, m)
     t = 0.0
     if eBe > 0:
         t = -(ex * gx + ey * gy) / eBe
@@ -607,13 +616,7 @@ def _kkt_edge(B, c, px, py, i, m):
     holding that point, or −1 where the walk would turn back or passes m edges (rounding at a vertex)."""
     came = 0
     for _ in range(m):
-        j = i + 1 if i + 1 < m else 0
-        ex, ey = px[j] - px[i], py[j] - py[i]
-        gx = B[0, 0] * px[i] + B[0, 1] * py[i] + c[0]
-        gy = B[1, 0] * px[i] + B[1, 1] * py[i] + c[1]
-        bex = B[0, 0] * ex + B[0, 1] * ey
-        bey = B[1, 0] * ex + B[1, 1] * ey
-        eBe = ex * bex + ey * bey
+        j, ex, ey, gx, gy, bex, bey, eBe = _edge_terms(B, c, px, py, i, m)
         t = -(ex * gx + ey * gy) / eBe if eBe > 0 else 0.0
         if t > 0.0 and t < 1.0:  # inside the edge: optimal if the gradient there opposes the outward normal
             if (gx + t * bex) * ey - (gy + t * bey) * ex <= 0.0:
@@ -642,8 +645,7 @@ def _kkt_edge(B, c, px, py, i, m):
 def _polygon_qp(B, c, px, py, m):
     """min ½ fᵀBf + fᵀc over the convex polygon with CCW vertices (px, py) containing the origin
     (the friction set λ·conv{μ_β d_β}, V-representation of eq. 8.51). Exact: the interior minimiser, or
-    the best clamped minimiser over the edges (lowest q, the first edge on ties; :func:`_boundary_qp`).
-    Kept small (the boundary case in its own function), so that the compiler inlines it into the sweeps."""
+    the best clamped minimiser over the edges (lowest q, the first edge on ties; :func:`_boundary_qp`)."""
     det = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
     fx = -(B[1, 1] * c[0] - B[0, 1] * c[1]) / det
     fy = -(-B[1, 0] * c[0] + B[0, 0] * c[1]) / det

@@ -271,6 +271,13 @@ def _segment_rows(rows, n, dom, n_domains, out, off):
 
 
 @njit(cache=True, inline="always")
+def _restart_term(c, sc, lam, lam_start, lam_prev, W):
+    """W_c (λ_c − y_c)(y_c − λ_{c,k−1}) of contact c (Delassus block at slot ``sc``): its term of the Nesterov
+    restart test (:func:`_listed_sum`)."""
+    return (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[sc, 0, 0]
+
+
+@njit(cache=True, inline="always")
 def _listed_sum(term, lo, cnt):
     """Σ term[lo:lo + cnt] in order: the restart test Σ_c W_c (λ_c − y_c)(y_c − λ_{c,k−1}) of the Nesterov
     extrapolation over one segment of the listed rows (see ``momentum`` of :func:`_coupled_iterate_impl`),
@@ -637,7 +644,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                                 listed[pos] = c
                                 n_new += 1
                         if momentum > 0.0 and pos >= 0:
-                            ext_term[pos] = (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[sc, 0, 0]
+                            ext_term[pos] = _restart_term(c, sc, lam, lam_start, lam_prev, W)
                         continue  # bound holds, no impulse: the visit changes nothing
                     if full:
                         pos = lo + n_new
@@ -663,7 +670,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                         seg_ch = max(seg_ch, abs(dl) * W[sc, 0, 0])
                     lam[c] = new
                     if momentum > 0.0:
-                        ext_term[pos] = (lam[c] - lam_start[c]) * (lam_start[c] - lam_prev[c]) * W[sc, 0, 0]
+                        ext_term[pos] = _restart_term(c, sc, lam, lam_start, lam_prev, W)
                     if m < 3:
                         continue
                     Bl[0, 0] = W[sc, 1, 1]
