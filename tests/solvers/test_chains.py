@@ -914,6 +914,31 @@ def test_fibre_domains_are_balanced_and_cut_few_rows():
         ChainOptions(contact_domains=0)
 
 
+def test_breadth_first_cover_is_scipys_search_per_component():
+    """The domain bisection's breadth-first order (one Numba call) against SciPy's breadth_first_order run from
+    each start not yet reached, on random sparse symmetric graphs with many components (isolated vertices,
+    as fibres before their first contact) and with few."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import breadth_first_order
+
+    from headsim.solvers._kernels.chains_coupled import breadth_first_cover
+
+    rng = np.random.default_rng(7)
+    for n, m in ((60, 10), (60, 200), (300, 150), (1, 0)):
+        i, j = rng.integers(0, n, m), rng.integers(0, n, m)
+        G = sp.coo_matrix((np.ones(m), (i, j)), shape=(n, n)).tocsr()
+        G = (G + G.T).tocsr()
+        starts = np.concatenate([[rng.integers(n)], rng.permutation(n)]).astype(np.int64)
+        seen, ref = np.zeros(n, bool), []
+        for s0 in starts:
+            if not seen[s0]:
+                o = breadth_first_order(G, int(s0), directed=False, return_predecessors=False)
+                seen[o] = True
+                ref.append(o)
+        got = breadth_first_cover(G.indptr.astype(np.int64), G.indices.astype(np.int64), starts)
+        assert np.array_equal(got, np.concatenate(ref))
+
+
 def test_options_are_validated():
     with pytest.raises(ParameterError):
         ChainOptions(restitution=1.5)

@@ -1267,7 +1267,6 @@ def _fibre_domains(fa: np.ndarray, fb: np.ndarray, n_fibres: int, n_domains: int
     each cut along a breadth-first order from a pseudo-peripheral fibre (the BFS level sets of a contact
     graph are spatial layers, so few rows join two parts: 4.5 % on the reference scene). Deterministic."""
     import scipy.sparse as sp
-    from scipy.sparse.csgraph import breadth_first_order
 
     part = np.zeros(n_fibres, np.int64)
     if n_domains <= 1 or n_fibres < 2:
@@ -1283,17 +1282,11 @@ def _fibre_domains(fa: np.ndarray, fb: np.ndarray, n_fibres: int, n_domains: int
             return
         sub = G[fibres][:, fibres]
         w = weight[fibres]
+        by_weight = np.argsort(-w, kind="stable")
 
         def bfs_order(start):
-            seen = np.zeros(len(fibres), bool)
-            out = []
-            for s0 in [start] + list(np.argsort(-w, kind="stable")):
-                if seen[s0]:
-                    continue
-                o = breadth_first_order(sub, int(s0), directed=False, return_predecessors=False)
-                seen[o] = True
-                out.append(o)
-            return np.concatenate(out)
+            starts = np.concatenate([[start], by_weight]).astype(np.int64)
+            return KC.breadth_first_cover(sub.indptr.astype(np.int64), sub.indices.astype(np.int64), starts)
 
         o = bfs_order(int(np.argmax(w)))
         o = bfs_order(int(o[-1]))  # from the last fibre reached: a pseudo-peripheral start

@@ -254,6 +254,36 @@ def _slot(c, n0, pslot):
 
 
 @njit(cache=True)
+def breadth_first_cover(indptr, indices, starts):
+    """(N,) int64 breadth-first order of all N vertices of a graph in CSR form (indptr, indices; symmetric: an
+    undirected graph): a search from starts[0], then from each later start not yet reached, in order; the
+    neighbours of a vertex are queued in their CSR order. Each search gives the order of
+    ``scipy.sparse.csgraph.breadth_first_order(G, s, directed=False)``; one kernel call replaces one SciPy call
+    per connected component (a strand before its first contact: one per fibre)."""
+    n = len(indptr) - 1
+    seen = np.zeros(n, np.bool_)
+    out = np.empty(n, np.int64)
+    end = 0
+    for s in starts:
+        if seen[s]:
+            continue
+        seen[s] = True
+        out[end] = s
+        head = end
+        end += 1
+        while head < end:
+            p = out[head]
+            head += 1
+            for i in range(indptr[p], indptr[p + 1]):
+                c = indices[i]
+                if not seen[c]:
+                    seen[c] = True
+                    out[end] = c
+                    end += 1
+    return out[:end]
+
+
+@njit(cache=True)
 def _segment_rows(rows, n, dom, n_domains, out, off):
     """Stable partition of rows[:n] by their domain (dom[c] ∈ 0..n_domains, n_domains = the cross rows) into
     out[:n]; off (n_domains + 2,) gets the segment offsets."""
