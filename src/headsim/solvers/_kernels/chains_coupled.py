@@ -771,8 +771,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                     slack_now[c] = sv - target[c]
                     n_tested += 1
                 if n_tested > 0:  # rebase: the slacks (exact or lower bounds) at this u become the reference
-                    for c in prange(nc):
-                        cand_slack[c] = slack_now[c]
+                    cand_slack, slack_now = slack_now, cand_slack  # (every candidate's was written above)
                     for z in prange(u.shape[0]):
                         for q in range(6):
                             u_ref[z, q] = u[z, q]
