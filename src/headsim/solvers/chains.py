@@ -1372,7 +1372,11 @@ class ChainSolver:
         return a if a.flags.writeable else a.copy()
 
     # -- joints ----------------------------------------------------------------------------------
-    def _joints(self, model, x, R, v, w, dt, dx_extra, dth_extra):
+    def _joints(self, model, x, R, v, w, dt, dx_extra, dth_extra, factor=None):
+        """The joint stage (Method I) of every fibre at the t_i state x, R, v, w: (v, w) corrected, the largest
+        Newton iteration count and the largest predicted joint gap (m). ``factor``: None, or a list that holds
+        the chains' factorised Newton matrices for the given ``model`` and R, filled by the first call that gets
+        it empty (the harmonisation passes of one step share it: the matrix depends on R of t_i only)."""
         o = self.options
         F = model.n_fibres
         v_out = np.empty_like(v)
@@ -1383,13 +1387,21 @@ class ChainSolver:
         args = (model.segment_offsets, model.anchored, x, R, v, w, model.mass, model.inertia, model.half_length,
                 model.root_point, model.root_frame, float(dt), g, dx_extra, dth_extra, model.joint_stiffness,
                 model.rest_rotation, model.joint_damping, float(o.joint_tolerance), int(o.max_newton))
+        ready = factor is not None and len(factor) > 0
+        if not ready:
+            arrays = tuple(np.empty((model.n_segments, 6, 6)) for _ in range(3))
+            if factor is not None:
+                factor.extend(arrays)
+        else:
+            arrays = tuple(factor)
+        fac = arrays + (ready,)
         if self.fibre_loop:
             for f in range(F):
-                its[f], gaps[f] = K.correct_fibre_joints(f, *args, v_out, w_out)
+                its[f], gaps[f] = K.correct_fibre_joints(f, *args, v_out, w_out, *fac)
         elif model.n_segments >= self.options.parallel_threshold:
-            K.correct_joints_batch(np.arange(F, dtype=np.int64), *args, v_out, w_out, its, gaps)
+            K.correct_joints_batch(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
         else:
-            K.correct_joints_serial(np.arange(F, dtype=np.int64), *args, v_out, w_out, its, gaps)
+            K.correct_joints_serial(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
         return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
 
     # -- detection ---------------------------------------------------------------------------------
@@ -2102,9 +2114,10 @@ class ChainSolver:
         u_end = None
         promoted = 0
         vel_impulses = None
+        joint_factor, unsprung_factor = [], []  # the joint stage's Newton factorisations of this step (x, R fixed)
         for it in range(o.harmonisation_iterations):
             t0 = time.perf_counter()
-            vJ, wJ, nit, _ = self._joints(model, x, R, v, w, dt, dx_extra, dth_extra)
+            vJ, wJ, nit, _ = self._joints(model, x, R, v, w, dt, dx_extra, dth_extra, joint_factor)
             newton = max(newton, nit)
             t1 = time.perf_counter()
             secs["joints"] += t1 - t0
@@ -2116,7 +2129,7 @@ class ChainSolver:
                 if self._unsprung is None or self._unsprung[0] is not model:
                     self._unsprung = (model, replace(model, joint_stiffness=0.0 * model.joint_stiffness,
                                                      joint_damping=0.0 * model.joint_damping).kernel)
-                vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra)
+                vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra, unsprung_factor)
                 half_step(x, R, vJ0, wJ0, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
                 w_hs = w_mid
                 w_mid = _spin_carried(wJ, R, R_mid, model.inertia)

@@ -478,11 +478,16 @@ def _block_thomas_solve(nj, Up, Dinv, G, rhs, out):
 
 @njit(cache=True)
 def correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, root_point, root_frame,
-                         dt, gravity, dx_extra, dth_extra, K, rest, damping, tol, max_iter, v_out, w_out):
+                         dt, gravity, dx_extra, dth_extra, K, rest, damping, tol, max_iter, v_out, w_out,
+                         factor_up, factor_dinv, factor_g, factor_ready):
     """Method I for one fibre (Alg. 7 lines 2–12): Newton-type iteration on the joint-gap system
     (eqs. 8.87/8.89) with the spring rows of §8.5.3 linearly implicit, always restarting the trial
     integration from the saved t_i state. Writes the corrected velocities of the fibre's segments into
-    v_out, w_out. Returns (iterations, predicted max gap after correction (m))."""
+    v_out, w_out. Returns (iterations, predicted max gap after correction (m)).
+
+    factor_up, factor_dinv, factor_g (S, 6, 6): the block-Thomas factorisation of the Newton matrix, the
+    fibre's joints at its segment rows seg_off[f]:; computed into them unless ``factor_ready`` (the matrix
+    depends on the rotations R and the constants only, so the harmonisation passes of one step share it)."""
     s0 = seg_off[f]
     n = seg_off[f + 1] - s0
     j0 = 0 if anchored[f] else 1
@@ -497,13 +502,17 @@ def correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, 
         return 0, 0.0
     P = np.zeros((nj, 6))
     res = np.zeros((nj, 6))
-    Dg = np.zeros((nj, 6, 6))
-    Lo = np.zeros((nj, 6, 6))
-    Up = np.zeros((nj, 6, 6))
-    Dinv = np.zeros((nj, 6, 6))
-    G = np.zeros((nj, 6, 6))
-    _fibre_jacobian(s0, n, j0, R, mass, inertia, half, dt, K, damping, Dg, Lo, Up)
-    _block_thomas_factor(nj, Dg, Lo, Up, Dinv, G)
+    Up = factor_up[s0:s0 + nj]
+    Dinv = factor_dinv[s0:s0 + nj]
+    G = factor_g[s0:s0 + nj]
+    if not factor_ready:
+        Dg = np.zeros((nj, 6, 6))
+        Lo = np.zeros((nj, 6, 6))
+        Up[:] = 0.0
+        Dinv[:] = 0.0
+        G[:] = 0.0
+        _fibre_jacobian(s0, n, j0, R, mass, inertia, half, dt, K, damping, Dg, Lo, Up)
+        _block_thomas_factor(nj, Dg, Lo, Up, Dinv, G)
     delta = np.zeros((nj, 6))
     it = 0
     gmax = _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root_frame, f, dt, gravity,
@@ -541,14 +550,14 @@ def correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, 
 @njit(cache=True, parallel=True)
 def correct_joints_batch(fibres, seg_off, anchored, x, R, v, w, mass, inertia, half, root_point, root_frame,
                          dt, gravity, dx_extra, dth_extra, K, rest, damping, tol, max_iter, v_out, w_out,
-                         iterations, gaps):
+                         factor_up, factor_dinv, factor_g, factor_ready, iterations, gaps):
     """:func:`correct_fibre_joints` for the fibres in ``fibres`` in parallel (each fibre's joint
     solve is independent). iterations (F,) int64 and gaps (F,) float64 receive the per-fibre stats."""
     for q in prange(fibres.shape[0]):
         f = fibres[q]
         it, g = correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, root_point,
                                      root_frame, dt, gravity, dx_extra, dth_extra, K, rest, damping, tol,
-                                     max_iter, v_out, w_out)
+                                     max_iter, v_out, w_out, factor_up, factor_dinv, factor_g, factor_ready)
         iterations[f] = it
         gaps[f] = g
 
@@ -868,13 +877,13 @@ def _frame(axis, n):
 @njit(cache=True)
 def correct_joints_serial(fibres, seg_off, anchored, x, R, v, w, mass, inertia, half, root_point, root_frame,
                           dt, gravity, dx_extra, dth_extra, K, rest, damping, tol, max_iter, v_out, w_out,
-                          iterations, gaps):
+                          factor_up, factor_dinv, factor_g, factor_ready, iterations, gaps):
     """Serial twin of :func:`correct_joints_batch` (small problems, loaded machines)."""
     for q in range(fibres.shape[0]):
         f = fibres[q]
         it, g = correct_fibre_joints(f, seg_off, anchored, x, R, v, w, mass, inertia, half, root_point,
                                      root_frame, dt, gravity, dx_extra, dth_extra, K, rest, damping, tol,
-                                     max_iter, v_out, w_out)
+                                     max_iter, v_out, w_out, factor_up, factor_dinv, factor_g, factor_ready)
         iterations[f] = it
         gaps[f] = g
 
