@@ -1651,7 +1651,6 @@ class ChainSolver:
     # -- contacts ----------------------------------------------------------------------------------
     def _targets(self, rows, gaps, beta, u, u_pre, model, Iwi, dt, sweep):
         """Lower bounds v_N of J u per row (eqs. 8.67–8.69 plus the gap terms of the module notes)."""
-        o = self.options
         n = rows.normal
         b = rows.partner
         vn = np.zeros(len(n))
