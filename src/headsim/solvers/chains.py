@@ -1355,6 +1355,7 @@ class ChainSolver:
         self._allow = None  # candidate_reserve: this step's allowance (S,) m/s of the reserve's split
         self._reserve = []  # candidate_reserve: this step's reserve pairs (_Reserve chunks)
         self._det_buffers = None  # work arrays of the fused detection pass (see _detection_buffers)
+        self._rows_buf = None  # its output rows (see _row_buffers)
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
         self._bound = None  # end_velocity_positions: the last step's energy bound B (J, see _energy_bound)
@@ -1523,9 +1524,7 @@ class ChainSolver:
                 # coupled mode: the fibre rows are written behind the obstacle rows into the arrays of the whole
                 # row set (one copy less of ≈ 2 M rows on the reference scene than a concatenation, 0.3–0.4 s)
                 n0 = sum(len(p.body) for p in parts) if coupled else 0
-                full = _Rows(np.empty(n0 + P, np.int64), np.empty(n0 + P, np.int64), np.empty((n0 + P, 3)),
-                             np.empty((n0 + P, 3)), np.empty((n0 + P, 3)), np.empty(n0 + P), np.zeros(n0 + P, bool),
-                             np.ones(n0 + P, bool), np.empty(n0 + P, np.int64), np.empty(n0 + P, np.bool_))
+                full = self._row_buffers(n0 + P, fresh=old_speed is not None)
                 a, b, n, la, lb, gap, tight, key = (full.body[n0:], full.partner[n0:], full.normal[n0:],
                                                     full.lever[n0:], full.partner_lever[n0:], full.gap[n0:],
                                                     full.tight[n0:], full.key[n0:])
@@ -1849,6 +1848,28 @@ class ChainSolver:
             u, sw = self._project(rows, order, row_off, bodies, u_minus, targets, model, R_mid, lam)
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
+
+    def _row_buffers(self, n, fresh=False) -> "_Rows":
+        """Output arrays of the fused detection pass for n rows (obstacle rows and fibre pairs; ``obstacle``
+        False and ``primary`` True, the others unset), kept across steps like :meth:`_detection_buffers` (a new
+        set of the reference scene's 1.4–4 M rows cost 40–100 ms of page faults per step). ``fresh``: new arrays
+        (a widened band's detection, while the first detection's rows are in use). The rows of a step are views
+        of these arrays: nothing keeps a step's rows into the next step's detection (the warm start keeps
+        copies)."""
+        def alloc(m):
+            return _Rows(np.empty(m, np.int64), np.empty(m, np.int64), np.empty((m, 3)), np.empty((m, 3)),
+                         np.empty((m, 3)), np.empty(m), np.empty(m, bool), np.empty(m, bool), np.empty(m, np.int64),
+                         np.empty(m, np.bool_))
+        if fresh:
+            buf = alloc(n)
+        else:
+            buf = self._rows_buf
+            if buf is None or len(buf.body) < n:
+                buf = self._rows_buf = alloc(int(1.25 * n) + 16)
+        out = _Rows(*[getattr(buf, f)[:n] for f in _Rows.__dataclass_fields__])
+        out.obstacle[:] = False
+        out.primary[:] = True
+        return out
 
     def _detection_buffers(self, n, fresh=False):
         """Work arrays of the fused detection pass for n pairs (sorted pairs and parameters, their intermediate
