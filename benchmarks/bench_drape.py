@@ -324,6 +324,55 @@ alternating runs):
   25–50× while the strand lands. The landing solves still end at their sweep cap, now with a 3–4× smaller
   residual: a smaller cap would trade that accuracy for time (``--set qp_iterations=20`` at the ringlet start:
   0.47 s contacts, 20.3 µm penetration; not made the default).
+
+Issue 10, eighteenth session (session start = commit b8dc73e's tree in a worktree against the final one, same
+venv and scripts, alternating runs, four rounds). Every change keeps the states: the ringlet start's 4-step state
+hash, the falling and landing strands' printed stats.
+
+* Contact domains: the breadth-first orders of the bisection (``_fibre_domains``) come from one Numba kernel
+  (``breadth_first_cover``) instead of one SciPy ``breadth_first_order`` call per connected component; before the
+  first contact every fibre is a component of its own: 21.5 → 1.6 ms per step.
+* Joint stage: the block-Thomas factors of every chain's Newton matrix depend on the rotations of t_i only, so
+  they are factorised once per step and shared by both harmonisation passes: joints 0.057–0.066 → 0.042–0.052 s.
+* Fused detection pass: its rows go to arrays kept across steps (as its work arrays already did), not to 1.4–4 M
+  fresh rows per step: its main call at the ringlet start 0.143–0.165 → 0.113–0.143 s.
+* Candidate screen: the rebase swaps the two slack arrays instead of copying one into the other (≈ 1 %).
+
+  | scene (command or state) | start of session | final |
+  |---|---|---|
+  | ringlet start, ``--settle 3 --steps 3 --coupled-only --geometry former`` | 1.08–1.11 s | **1.05–1.12 s** (1.05 in the last two rounds) |
+  | derived geometry t = 5 ms (no contact yet), ``--settle 3 --steps 3 --coupled-only`` | 0.36–0.39 s | 0.34–0.38 s |
+  | falling, t = 62–64 ms (steps from a saved t = 60 ms state) | 0.70–0.76 s | 0.67–0.70 s |
+  | landing, t = 86 / 87 / 88 ms (from a saved t = 85 ms state) | 10.3–10.8 / 5.2–5.7 / 4.5–4.8 s | 10.2–10.7 / 5.2–5.4 / 4.3–4.8 s |
+
+  The machine ran slower than in the seventeenth session (its final tree: landing 9.9 / 5.4 / 4.9 s then,
+  10.3–10.8 / 5.2–5.7 / 4.5–4.8 s now). The t = 86 ms figure includes the cold start of a solver that loaded a
+  saved state (first touches of every work array: the fused pass 0.45 s per call against 0.11 s a step later).
+* Tried and left out (all measured): a cursor into the warm-start keys instead of a binary search per reserve pair
+  in the fused pass (0.094 against 0.096 s on the captured ringlet call); separating-axis rejects along both segment
+  axes before the packed tree's exact capsule test (no gain: 0.197 against 0.199 s single-threaded; the query's
+  time is in the traversal and the lane tests, not in its 4.6 M capsule tests); reusing the tree's pairs over
+  several steps with a skin (the helical strand's tips move up to 0.7 mm per step relative to its mean motion
+  from the first step on, 10 radii); a sweep cap of 8 for the first pass's velocity solve (landing ≈ 7 % faster);
+  a cap of 15 for the push-out solve (landing ≈ 5 % faster, ringlet max penetration 24.8 → 34.2 µm after 4 steps);
+  one harmonisation pass (landing ≈ 40 % faster, but 95 against 61 µm max penetration at t = 88 ms, and the
+  second pass's half-step projection and end-velocity positions off); ``qp_iterations`` = 20 (fails
+  ``test_former_half_step_never_gains_energy_on_the_fibre_held_bent[0.2]``: an energy gain of 1.9e-15 J against
+  its 1.1e-19 J round-off bound); the next full sweep sooner after promotions (6 × 10 log pile, rows starting as
+  candidates: 2,191 → 2,104 sweeps without friction, 12,096 → 14,544 with); a screen of the partial sweeps' inactive
+  listed rows by their bodies' velocity drift since the row's last visit (counted on the captured landing solve:
+  at best 45 % of its 4.4 M inactive visits skipped, ≈ 5 % of its time, against bookkeeping on every twist
+  update; not built).
+* Convergence on the reference ringlet (``bench_contact_convergence.py --fibres 355 --segments 100 --settle 3``,
+  t = 3 ms, 6,533 rows, 263 k candidates), distance to a 3,000-sweep answer in the kinetic metric: Nesterov 60
+  sweeps 0.091, 30 sweeps 0.180, cap 20 (run to 40 by its promotions) 0.130; plain Gauss–Seidel 60 sweeps 0.279.
+* Settled strand (``--fibres 40 --segments 30 --settle 1500 --steps 20 --coupled-only``, t = 1.5 s): 0.050 s per
+  step, 595 active contacts, max penetration 51 µm, every solve at its cap (as in the ninth session's 0.049–0.055 s).
+* Goal 0.2 s: ≈ 1.8× off with no contact yet, ≈ 3.4× on the falling strand, ≈ 5.3× at the ringlet start,
+  ≈ 22–53× while the strand lands. Per step before contact (cProfile): tree query 0.10 s, fused pass 0.03 s,
+  contact set-ups 2 × 15 ms and iterations 2 × 11 ms (chain factors and sweeps of every fibre with candidates),
+  joints 0.045 s, relative band 0.03 s, per-step statistics 0.02 s. Landing, t = 87 ms: the three contact
+  iterations 3.3 s, detection 0.9 s (tree query 0.45 s, fused passes 0.34 s, gather 0.16 s).
 """
 
 from __future__ import annotations
