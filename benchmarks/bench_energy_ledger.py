@@ -64,7 +64,6 @@ from headsim.collide import PlaneField
 from headsim.solvers.chains import (
     ChainOptions,
     ChainSolver,
-    ChainState,
     Obstacle,
     _joint_frames,
     _log_so3_many,

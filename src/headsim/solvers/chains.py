@@ -135,6 +135,7 @@ __all__ = [
     "chain_model_from_polylines",
     "chain_state_from_polylines",
     "polylines_from_state",
+    "chain_energies",
     "kinetic_energy",
     "potential_energy",
     "spring_energy",
@@ -517,19 +518,10 @@ def _apply_scaled(R: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
-def kinetic_energy(model: ChainModel, state: ChainState) -> float:
-    """½ Σ (m v² + ωᵀ I_w ω), J."""
-    body = np.matmul(state.angular_velocity[:, None, :], state.rotation)[:, 0, :]  # Rᵀ ω
-    rot = (model.inertia * body * body).sum()
-    return float(0.5 * (model.mass * (state.velocity**2).sum(1)).sum() + 0.5 * rot)
-
-
-def potential_energy(model: ChainModel, state: ChainState, gravity=(0.0, -STANDARD_GRAVITY, 0.0)) -> float:
-    """−Σ m gᵀx, J."""
-    return float(-(model.mass * (state.position @ np.asarray(gravity, float))).sum())
-
-
 def _joint_frames(model: ChainModel, state: ChainState):
+    """(R_k (S, 3, 3) the frame each segment's inner joint is measured from — the previous segment's, the root
+    frame at a root —, active (S,) bool, prev, is_root, fibre) (NumPy; the energy ledger benchmark's joint
+    angles)."""
     S = model.n_segments
     is_root = model.is_root
     prev = np.maximum(np.arange(S) - 1, 0)
@@ -539,24 +531,40 @@ def _joint_frames(model: ChainModel, state: ChainState):
     return Rk, active, prev, is_root, fib
 
 
+def chain_energies(model: ChainModel, state: ChainState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(S,) each, per segment, in one Numba pass: kinetic energy ½ (m v² + ωᵀ I_w ω) (J), the spring energy
+    ½ Σ_c K_c (θ_c − θ°_c)² of its inner joint (θ = log(R_kᵀ R_l), eq. 8.83; J) and that joint's gap norm ‖d‖
+    (eq. 8.76; m); the last two 0 at free roots."""
+    S = model.n_segments
+    fib = model.segment_fibre
+    active = np.ascontiguousarray(~model.is_root | model.anchored[fib])
+    kin, spring, gap = np.empty(S), np.empty(S), np.empty(S)
+    (FK.chain_stats_parallel if S >= FRAME_PASS_PARALLEL else FK.chain_stats)(
+        _f64(state.position), _f64(state.rotation), _f64(state.velocity), _f64(state.angular_velocity), _f64(model.mass),
+        _f64(model.inertia), _f64(model.half_length), np.ascontiguousarray(model.is_root), active,
+        np.ascontiguousarray(fib, np.int64), _f64(model.root_point), _f64(model.root_frame),
+        _f64(model.joint_stiffness), _f64(model.rest_rotation), np.empty((S, 3, 3)), kin, spring, gap)
+    return kin, spring, gap
+
+
+def kinetic_energy(model: ChainModel, state: ChainState) -> float:
+    """½ Σ (m v² + ωᵀ I_w ω), J."""
+    return float(chain_energies(model, state)[0].sum())
+
+
+def potential_energy(model: ChainModel, state: ChainState, gravity=(0.0, -STANDARD_GRAVITY, 0.0)) -> float:
+    """−Σ m gᵀx, J."""
+    return float(-(model.mass * (state.position @ np.asarray(gravity, float))).sum())
+
+
 def spring_energy(model: ChainModel, state: ChainState) -> float:
     """½ Σ_j Σ_c K_c (θ_c − θ°_c)², J (θ = log(R_kᵀ R_l) of every active joint)."""
-    Rk, active, *_ = _joint_frames(model, state)
-    th = _log_so3_many(np.matmul(Rk.transpose(0, 2, 1), state.rotation))
-    e = 0.5 * (model.joint_stiffness * (th - model.rest_rotation) ** 2).sum(1)
-    return float(e[active].sum())
+    return float(chain_energies(model, state)[1].sum())
 
 
 def joint_gaps(model: ChainModel, state: ChainState) -> np.ndarray:
     """(S,) m: gap norm ‖d‖ of every segment's inner joint (eq. 8.76; 0 for free roots)."""
-    _, active, prev, is_root, fib = _joint_frames(model, state)
-    d3 = state.rotation[:, :, 2]
-    inner = state.position - model.half_length[:, None] * d3
-    outer_prev = state.position[prev] + model.half_length[prev, None] * d3[prev]
-    pk = np.where(is_root[:, None], model.root_point[fib], outer_prev)
-    g = np.linalg.norm(pk - inner, axis=1)
-    g[~active] = 0.0
-    return g
+    return chain_energies(model, state)[2]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -2386,10 +2394,11 @@ class ChainSolver:
                        qp_capped=self._qp_capped, qp_residual=self._qp_residual,
                        harmonisation_iterations=o.harmonisation_iterations,
                        energy_bound=float("nan") if self._bound is None else self._bound, exact_solves=self._continued)
-        st.kinetic_energy = kinetic_energy(model, new)
+        kin, spring, gap = chain_energies(model, new)
+        st.kinetic_energy = float(kin.sum())
         st.potential_energy = potential_energy(model, new, g)
-        st.spring_energy = spring_energy(model, new)
-        st.max_joint_gap = float(joint_gaps(model, new).max(initial=0.0))
+        st.spring_energy = float(spring.sum())
+        st.max_joint_gap = float(gap.max(initial=0.0))
         active = (lam > 0) & (rows.primary | (o.contact_coupling == "per-body")) if len(lam) else np.zeros(0, bool)
         st.contacts = int(active.sum())
         st.candidate_band = band_mode if o.contact_coupling == "coupled" else ""

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
+from headsim.solvers._kernels.chains import _log_so3_parts
 from headsim.solvers._kernels.twins import serial_and_parallel
 
 
@@ -79,3 +80,42 @@ def _joint_rows_impl(seg, is_root, fib, x, R, half, root_point, root_frame, stif
 
 
 joint_rows, joint_rows_parallel = serial_and_parallel(_joint_rows_impl)
+
+
+def _chain_stats_impl(x, R, v, w, mass, inertia, half, is_root, active, fib, root_point, root_frame, stiffness,
+                      rest, work, kinetic_out, spring_out, gap_out):
+    """Per segment s of a chain state (:mod:`headsim.solvers.chains`, SI units), in one pass:
+    kinetic_out[s] = ½ (m v² + Σ_c I_c (R_sᵀ ω)_c²) (J); spring_out[s] = ½ Σ_c K_c (θ_c − θ°_c)² of its inner joint,
+    θ = log(R_kᵀ R_s) (Sobottka eq. 8.83; R_k the previous segment's frame, the root frame at a root) (J); gap_out[s]
+    = ‖p_k − (x_s − h_s d3_s)‖ of its inner joint (eq. 8.76; p_k the previous segment's outer end or the root
+    point) (m). Both 0 where the joint is not ``active`` (a free root). work (S, 3, 3): R_kᵀ R_s."""
+    for s in prange(x.shape[0]):
+        e = mass[s] * (v[s, 0] * v[s, 0] + v[s, 1] * v[s, 1] + v[s, 2] * v[s, 2])
+        for c in range(3):
+            b = w[s, 0] * R[s, 0, c] + w[s, 1] * R[s, 1, c] + w[s, 2] * R[s, 2, c]
+            e += inertia[s, c] * b * b
+        kinetic_out[s] = 0.5 * e
+        if not active[s]:
+            spring_out[s] = 0.0
+            gap_out[s] = 0.0
+            continue
+        root = is_root[s]
+        k = s - 1
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for c in range(3):
+                    acc += (root_frame[fib[s], c, i] if root else R[k, c, i]) * R[s, c, j]
+                work[s, i, j] = acc
+        t0, t1, t2 = _log_so3_parts(work[s])
+        spring_out[s] = 0.5 * (stiffness[s, 0] * (t0 - rest[s, 0]) ** 2 + stiffness[s, 1] * (t1 - rest[s, 1]) ** 2
+                               + stiffness[s, 2] * (t2 - rest[s, 2]) ** 2)
+        g = 0.0
+        for i in range(3):
+            pk = root_point[fib[s], i] if root else x[k, i] + half[k] * R[k, i, 2]
+            d = pk - (x[s, i] - half[s] * R[s, i, 2])
+            g += d * d
+        gap_out[s] = np.sqrt(g)
+
+
+chain_stats, chain_stats_parallel = serial_and_parallel(_chain_stats_impl)
