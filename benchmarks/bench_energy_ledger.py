@@ -167,6 +167,8 @@ def main():
     ap.add_argument("--ledger", type=int, nargs="*", default=[1, 10, 11])
     ap.add_argument("--tight", action="store_true", help="also run every variant with converged solves")
     a = ap.parse_args()
+    if a.steps <= 150:
+        ap.error(f"--steps must exceed 150 (the at-rest figures are taken over steps 150 onwards), got {a.steps}")
     tight = dict(qp_iterations=20000, contact_tolerance=1e-9)
     variants = [("defaults", {}), ("no push-out", dict(penetration_recovery=0.0)),
                 ("projected midpoint", dict(end_velocity_positions=False)),
