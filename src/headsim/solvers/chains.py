@@ -1857,23 +1857,31 @@ class ChainSolver:
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
 
+    def _kept_arrays(self, attr, n, alloc, fresh):
+        """``alloc(m)``'s arrays with room for n entries, kept across steps in ``self.<attr>`` (as (arrays, m),
+        grown to 1.25 n when too small: fresh arrays for the reference scene's millions of pairs and rows cost
+        their page faults every step), or new ones of length n where ``fresh`` (a second detection in the step,
+        while the first one's arrays are in use)."""
+        if fresh:
+            return alloc(n)
+        kept = getattr(self, attr)
+        if kept is None or kept[1] < n:
+            m = int(1.25 * n) + 16
+            kept = (alloc(m), m)
+            setattr(self, attr, kept)
+        return kept[0]
+
     def _row_buffers(self, n, fresh=False) -> "_Rows":
         """Output arrays of the fused detection pass for n rows (obstacle rows and fibre pairs; ``obstacle``
-        False and ``primary`` True, the others unset), kept across steps like :meth:`_detection_buffers` (a new
-        set of the reference scene's 1.4–4 M rows cost 40–100 ms of page faults per step). ``fresh``: new arrays
-        (a widened band's detection, while the first detection's rows are in use). The rows of a step are views
-        of these arrays: nothing keeps a step's rows into the next step's detection (the warm start keeps
+        False and ``primary`` True, the others unset), kept across steps (:meth:`_kept_arrays`; a new set of
+        the reference scene's 1.4–4 M rows cost 40–100 ms of page faults per step). The rows of a step are
+        views of these arrays: nothing keeps a step's rows into the next step's detection (the warm start keeps
         copies)."""
         def alloc(m):
             return _Rows(np.empty(m, np.int64), np.empty(m, np.int64), np.empty((m, 3)), np.empty((m, 3)),
                          np.empty((m, 3)), np.empty(m), np.empty(m, bool), np.empty(m, bool), np.empty(m, np.int64),
                          np.empty(m, np.bool_))
-        if fresh:
-            buf = alloc(n)
-        else:
-            buf = self._rows_buf
-            if buf is None or len(buf.body) < n:
-                buf = self._rows_buf = alloc(int(1.25 * n) + 16)
+        buf = self._kept_arrays("_rows_buf", n, alloc, fresh)
         out = _Rows(*[getattr(buf, f)[:n] for f in _Rows.__dataclass_fields__])
         out.obstacle[:] = False
         out.primary[:] = True
@@ -1881,18 +1889,12 @@ class ChainSolver:
 
     def _detection_buffers(self, n, fresh=False):
         """Work arrays of the fused detection pass for n pairs (sorted pairs and parameters, their intermediate
-        order, the reserve's positions and slacks), kept across steps (grown by 25 % when too small): fresh
-        arrays of the reference scene's ≈ 5 M pairs cost their page faults every step. ``fresh``: new arrays
-        (a second detection in the step, whose reserve must not overwrite the first one's)."""
-        if fresh:
-            return (np.empty((n, 2), np.int64), np.empty((n, 2)), np.empty((n, 2), np.int64), np.empty((n, 2)),
-                    np.empty(n, np.int64), np.empty(n))
-        buf = self._det_buffers
-        if buf is None or len(buf[0]) < n:
-            m = int(1.25 * n) + 16
-            buf = self._det_buffers = (np.empty((m, 2), np.int64), np.empty((m, 2)), np.empty((m, 2), np.int64),
-                                       np.empty((m, 2)), np.empty(m, np.int64), np.empty(m))
-        return tuple(b[:n] for b in buf)
+        order, the reserve's positions and slacks), kept across steps (:meth:`_kept_arrays`; ``fresh``: a second
+        detection in the step, whose reserve must not overwrite the first one's)."""
+        def alloc(m):
+            return (np.empty((m, 2), np.int64), np.empty((m, 2)), np.empty((m, 2), np.int64), np.empty((m, 2)),
+                    np.empty(m, np.int64), np.empty(m))
+        return tuple(b[:n] for b in self._kept_arrays("_det_buffers", n, alloc, fresh))
 
     def _reserve_half_gap(self) -> bool:
         """Whether a last pass with ``end_velocity_positions`` may let a speculative row close only ½ g^i (then the
