@@ -1364,6 +1364,8 @@ class ChainSolver:
         self._reserve = []  # candidate_reserve: this step's reserve pairs (_Reserve chunks)
         self._det_buffers = None  # work arrays of the fused detection pass (see _detection_buffers)
         self._rows_buf = None  # its output rows (see _row_buffers)
+        self._joint_factor_buf = None  # the joint stage's Newton factors (see _joints)
+        self._unsprung_factor_buf = None  # … of the spring-free joint stage (springs_in_first_half_step=False)
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
         self._bound = None  # end_velocity_positions: the last step's energy bound B (J, see _energy_bound)
@@ -1381,11 +1383,13 @@ class ChainSolver:
         return a if a.flags.writeable else a.copy()
 
     # -- joints ----------------------------------------------------------------------------------
-    def _joints(self, model, x, R, v, w, dt, dx_extra, dth_extra, factor=None):
+    def _joints(self, model, x, R, v, w, dt, dx_extra, dth_extra, factor=None, store=None):
         """The joint stage (Method I) of every fibre at the t_i state x, R, v, w: (v, w) corrected, the largest
         Newton iteration count and the largest predicted joint gap (m). ``factor``: None, or a list that holds
         the chains' factorised Newton matrices for the given ``model`` and R, filled by the first call that gets
-        it empty (the harmonisation passes of one step share it: the matrix depends on R of t_i only)."""
+        it empty (the harmonisation passes of one step share it: the matrix depends on R of t_i only).
+        ``store``: the attribute whose arrays (kept across steps, :meth:`_kept_arrays`) the factors go to;
+        None: fresh arrays."""
         o = self.options
         F = model.n_fibres
         v_out = np.empty_like(v)
@@ -1398,7 +1402,10 @@ class ChainSolver:
                 model.rest_rotation, model.joint_damping, float(o.joint_tolerance), int(o.max_newton))
         ready = factor is not None and len(factor) > 0
         if not ready:
-            arrays = tuple(np.empty((model.n_segments, 6, 6)) for _ in range(3))
+            S = model.n_segments
+            def alloc(m):
+                return tuple(np.empty((m, 6, 6)) for _ in range(3))
+            arrays = alloc(S) if store is None else tuple(a[:S] for a in self._kept_arrays(store, S, alloc, False))
             if factor is not None:
                 factor.extend(arrays)
         else:
@@ -2144,10 +2151,12 @@ class ChainSolver:
         u_end = None
         promoted = 0
         vel_impulses = None
+        u_vel = gaps0 = None  # the first pass's velocity solve and row gaps at t_i, read by the later passes
         joint_factor, unsprung_factor = [], []  # the joint stage's Newton factorisations of this step (x, R fixed)
         for it in range(o.harmonisation_iterations):
             t0 = time.perf_counter()
-            vJ, wJ, nit, _ = self._joints(model, x, R, v, w, dt, dx_extra, dth_extra, joint_factor)
+            vJ, wJ, nit, _ = self._joints(model, x, R, v, w, dt, dx_extra, dth_extra, joint_factor,
+                                          "_joint_factor_buf")
             newton = max(newton, nit)
             t1 = time.perf_counter()
             secs["joints"] += t1 - t0
@@ -2159,7 +2168,8 @@ class ChainSolver:
                 if self._unsprung is None or self._unsprung[0] is not model:
                     self._unsprung = (model, replace(model, joint_stiffness=0.0 * model.joint_stiffness,
                                                      joint_damping=0.0 * model.joint_damping).kernel)
-                vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra, unsprung_factor)
+                vJ0, wJ0, _, _ = self._joints(self._unsprung[1], x, R, v, w, dt, dx_extra, dth_extra, unsprung_factor,
+                                              "_unsprung_factor_buf")
                 half_step(x, R, vJ0, wJ0, model.inertia, 0.5 * dt, x_mid, R_mid, w_mid)
                 w_hs = w_mid
                 w_mid = _spin_carried(wJ, R, R_mid, model.inertia)
