@@ -156,7 +156,7 @@ def main(argv=None):
         table.add(label, "libigl point_mesh_squared_distance (+build)", t_igl2, t_ours)
         sub = pts[:n_trimesh_closest]
         t_tm = extrapolated(lambda: trimesh.proximity.closest_point(mesh, sub), len(sub), n)
-        table.add(label, f"trimesh.proximity.closest_point", t_tm, t_ours, f"(extrapolated from {len(sub)})")
+        table.add(label, "trimesh.proximity.closest_point", t_tm, t_ours, f"(extrapolated from {len(sub)})")
         sub = pts[:n_brute]
         t_bf = extrapolated(lambda: ref.closest_points_bruteforce(sub, V, F), len(sub), n)
         table.add(label, "brute force O(q·m) NumPy", t_bf, t_ours, f"(extrapolated from {len(sub)})")

@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from dataclasses import replace
 
 
 def _problem(kind: str, mu: float):
