@@ -271,10 +271,11 @@ def test_reference_scene_settles_to_a_stable_volume_with_isotropic_friction(heli
     varies by less than 5 % of its mean and the kinetic energy is below 1/100 of its peak (measured:
     0.27 % and 4.4e-4 with issue 10's ``half_step_projection`` and ``separating_candidates``; before them
     0.2 % and 3.1e-4, 3.9e-4 before ``joint_gap_fraction`` = 0; 19 × 30: 0.2 %, 2.8e-4; 61 × 50: 0.2 %,
-    3.2e-5, both before). The strand rests partly over the
+    3.2e-5, both before; the full 355 × 100 scene, run once by ``benchmarks/bench_drape_volume.py --modes iso``:
+    0.3 %, 2.8e-5). The strand rests partly over the
     sphere's rim (box ≈ 13 × 16 cm wide, 20 cm tall, against the seed's 8.7 × 14.1 cm, 8.4 cm tall). Not asserted for the
-    anisotropic model, which does not settle by 1.5 s at 7 × 30 (29 %, 4e-2), 19 × 30 (16 %, 1.0e-2) or
-    61 × 50 (15 %, 1.3e-2): see ``benchmarks/bench_drape_volume.py``."""
+    anisotropic model, which does not settle by 1.5 s at 7 × 30 (29 %, 4e-2), 19 × 30 (16 %, 1.0e-2),
+    61 × 50 (15 %, 1.3e-2) or full size (18 %, 2.8e-3): see ``benchmarks/bench_drape_volume.py``."""
     from headsim.hair.drape import volume_stability
 
     res, _ = helical_runs["iso"]
