@@ -400,6 +400,13 @@ the coupled kernel that adds cycle counters per section, ``llvm.readcyclecounter
   to 90–230 µm then). Before, the deepest overlaps are 28–62 µm where the strand lands (segments 44–86). A contact
   whose centre lines nearly cross has no consistent normal, so these rows and the root joints keep undoing each
   other. Not fixed; this is where the settled regime's sweeps go, and a cap that stops it is a result change.
+  The crossings come from the capped solves, not from a geometry that cannot be resolved: from the t = 0.45 s state
+  (9 pairs deeper than a radius), 25 steps with ``qp_iterations`` = 30 (the default) / 60 / 120 leave 37 / 26 / 6
+  such pairs at t = 0.475 s (largest overlap 69.9 / 69.1 / 57.1 µm), in 40 / 49 / 75 s. More sweeps where these rows
+  and the root joints fight, rather than everywhere, is the lead.
+  (The run's reported penetration of up to 230 µm exceeds the 70 µm two capsules can overlap, and the sphere's
+  penetration at the nodes stays below 13 µm: most likely it is the rows' first-order gaps at t_i (mid-step gap
+  less the first half step's approach), which a pair whose centre lines cross can take beyond −2r. Not checked.)
 * At t = 200 ms the solves end at 48–57 sweeps instead of their 30 because 1–6 candidates become rows in each
   full sweep after sweep 28 (each extends the cap by 9; 75–418 in the first full sweep).
 * Tried and left out (captured landing solve t = 86 ms unless said; iterates bitwise the same where said):
