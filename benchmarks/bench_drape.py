@@ -403,7 +403,10 @@ the coupled kernel that adds cycle counters per section, ``llvm.readcyclecounter
   The crossings come from the capped solves, not from a geometry that cannot be resolved: from the t = 0.45 s state
   (9 pairs deeper than a radius), 25 steps with ``qp_iterations`` = 30 (the default) / 60 / 120 leave 37 / 26 / 6
   such pairs at t = 0.475 s (largest overlap 69.9 / 69.1 / 57.1 µm), in 40 / 49 / 75 s. More sweeps where these rows
-  and the root joints fight, rather than everywhere, is the lead.
+  and the root joints fight, rather than everywhere, is the lead. A small case that shows the same: the settled
+  40 × 30 strand (``--fibres 40 --segments 30``, 1,500 steps, 86 s): its 51 µm resting overlap (see above) is between
+  root segments (segment 0 of both fibres; 4 pairs deeper than a radius); with ``qp_iterations`` = 120 (154 s) the
+  largest overlap is 23 µm, mid-fibre, and none is deeper than a radius.
   (The run's reported penetration of up to 230 µm exceeds the 70 µm two capsules can overlap, and the sphere's
   penetration at the nodes stays below 13 µm: most likely it is the rows' first-order gaps at t_i (mid-step gap
   less the first half step's approach), which a pair whose centre lines cross can take beyond −2r. Not checked.)
