@@ -423,6 +423,36 @@ the coupled kernel that adds cycle counters per section, ``llvm.readcyclecounter
   the energy of the stack tests before, see WARM_START_FRACTION, and this was not validated again).
 * The joint stage's Newton factors now go to arrays kept across steps (30 MB of fresh pages per step before): joints
   phase 0.0435 → 0.041–0.0425 s per step; ringlet 4-step hash unchanged (a2aae719…).
+
+Issue 10, twentieth session (the three captured solves of one resting step, t = 1.5 s, 65.8 k rows, 57 k candidates,
+35.5 k joints, replayed with copies of the coupled kernel; residuals measured at the solve's final twists):
+
+* The resting solves cannot reach the stopping rule at any affordable cap: the velocity solve's last change is
+  0.143 / 0.070 / 0.039 / 0.020 / 0.0073 m/s after 20 / 60 / 127 / 300 / 1,000 sweeps (1e-5 asked). The change is an
+  impulse change times the free segment's W₀₀; the true residuals are smaller: after its 60 sweeps the largest bound
+  violation is 3.8 mm/s (99th percentile 55 µm/s, 53 rows above 1 mm/s) and the largest joint gap rate 4.3 mm/s;
+  after 300 sweeps 0.66 and 2.6 mm/s.
+* Why so slow: with the chains solved, a contact impulse moves its bodies by 6–20 % of what it moves free segments
+  (W₀₀ with the chains' response / without, 400 sampled rows: 0.058 / 0.063 / 0.20 at the 10th / 50th / 90th
+  percentile; 0.015–0.057 on segments 0–4), and every row's Gauss–Seidel step is sized by the free W₀₀. The
+  largest impulse changes between sweeps 100 and 200 are all on segments 0–4, between neighbouring roots.
+* Tried and left out: that chain-aware W₀₀ (computed exactly per row) as the rows' step size diverges (NaN), also
+  at 2× and 4× it: the rows of one fibre then act together on a chain that only the next sweep solves. Ending the
+  solve at ``qp_iterations`` and settling the late promotions by local sweeps over their fibres instead of 9 more
+  global sweeps each: the three solves 1.10 → 0.61 s, but their residuals are those of 30 sweeps (rows above
+  1 mm/s: 269 / 976 / 1,151 against 53 / 297 / 512): the late promotions are what runs the resting solves to 60
+  sweeps, and those sweeps are accuracy, not waste. Not kept.
+* Kept: root sweeps (``ChainOptions.root_sweeps``, default 8, first 8 segments): block Gauss–Seidel over the root
+  region after every unconverged full sweep; the same fixed point. On the captured solves (experimental copy, 16
+  sweeps) 1.27 s (0) against 1.29 s for the three, fewer rows above 1 mm/s in the push-out solves (136 / 371 against 297 / 512), and no
+  extra cost at the landing (t = 86 ms, 1.09–1.14 against 1.13–1.17 s; the same sweeps, promotions and residuals:
+  no root row carries an impulse then).
+  Full size, aniso, from the saved states (pairs overlapping by more than a radius, all but a few on segments 0–7):
+  t = 0.4 → 0.5 s 132 → 62 pairs (1.77 → 1.82 s per step); 0.45 → 0.475 s 37 → 7; at rest 1.475 → 1.5 s 155 → 117
+  (1.43 → 1.56 s per step); the settled 40 × 30 strand 51 µm / 4 pairs → 39 µm / 1 pair. See the option's notes
+  (16 sweeps: more cost, not consistently fewer crossings). The crossings are fewer, not gone.
+* Goal 0.2 s per step: not met; ≈ 7× off at rest in these 25-step runs (1.4–1.6 s per step; 1.0–1.3 s in the
+  nineteenth session's).
 """
 
 from __future__ import annotations

@@ -43,6 +43,9 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    segment; :func:`_unique_joint_contacts`), not as two redundant rows. The seed's per-body projection cannot hold a stack: a body squeezed between a static obstacle
    and a falling partner gets contradictory constraints (obstacle: v_n ≥ 0, partner: v_n ≤ −gΔt), and
    crossed fibre layers sink through each other within a few hundred steps (measured, see the tests).
+   Fibres anchored at their roots get extra sweeps over their first segments after every unconverged full
+   sweep (``root_sweeps``): next to the anchored root the solved chain hardly yields, and those rows are the
+   slowest of the whole solve to converge.
 3. **Harmonisation.** ``harmonisation_iterations`` > 1 repeats joints → contacts with the contact
    stage's velocity change fed into the joint trial integration, so the joints close around the
    projected motion; the contact stage is always last (non-penetration wins; the remaining joint gap
@@ -884,6 +887,30 @@ class ChainOptions:
         The states differ from ``False`` only where a candidate is promoted during an iteration but not
         violated at its end (same fixed point). The allowance δ̂ is the one of ``candidate_band = "relative"``
         (its velocity-change tracking then runs in every step).
+    root_sweeps, root_segments : coupled mode (the contact solves and the half-step projection): after every
+        full sweep that has not met the stopping rule, ``root_sweeps`` (default 8) extra Gauss–Seidel sweeps
+        over the first ``root_segments`` (default 8) segments of every fibre anchored at its root: the
+        joints there solved exactly, the rows on those segments visited (``root_sweeps`` of
+        :func:`headsim.solvers._kernels.chains_coupled._coupled_iterate_impl`). Same fixed point; 0: the
+        former iterates, bitwise. Issue 10's twentieth session: on the reference scene the roots are anchored
+        105 µm apart (1.5 diameters), and once the strand has slid over the sphere (t ≈ 0.47 s) the capped
+        solves left the first segments of neighbouring fibres crossing each other (overlaps up to one
+        diameter). A contact next to the anchored root is the slowest row to converge: a push there moves
+        the solved chain by 1.5–6 % of what it moves a free segment. Measured with the saved full-size aniso
+        states (pairs of capsules overlapping by more than a radius, all but a few on segments 0–7; time per
+        step, the machine otherwise idle):
+
+        - t = 0.4 → 0.5 s (100 steps): 132 pairs at 0.5 s with 0 root sweeps, 1.77 s per step; 62 with 8,
+          1.82 s; 96 with 16, 2.04 s;
+        - t = 0.45 → 0.475 s: 37 pairs with 0 (1.72 s per step), 7 with 8 (1.67 s), 11 with 16 (1.92 s);
+          ``qp_iterations`` = 120 instead gave 6 pairs at 3.0 s per step (nineteenth session);
+        - at rest, t = 1.475 → 1.5 s (155 crossing pairs at the start): 155 pairs with 0 (1.43 s per step),
+          117 with 8 (1.56 s), 83 with 16 (1.81 s);
+        - the settled 40 × 30 strand (t = 1.5 s): deepest overlap 50.9 µm, 4 pairs, with 0; 39.0 µm, 1 pair,
+          with 8; 31.6 µm, none, with 16.
+
+        The crossings are fewer, not gone: a pair whose centre lines already cross (overlap ≈ 70 µm) has no
+        consistent normal, and the deepest overlap stays at 69–70 µm in the full-size runs.
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -923,6 +950,8 @@ class ChainOptions:
     contact_acceleration: str = "nesterov"
     candidate_band: str = "relative"
     candidate_reserve: bool = True
+    root_sweeps: int = 8
+    root_segments: int = 8
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -945,6 +974,10 @@ class ChainOptions:
             raise ParameterError(f"contact_tolerance must be ≥ 0 m/s, got {self.contact_tolerance}")
         if not (isinstance(self.contact_domains, (int, np.integer)) and self.contact_domains >= 1):
             raise ParameterError(f"contact_domains must be an integer ≥ 1, got {self.contact_domains}")
+        for name in ("root_sweeps", "root_segments"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0):
+                raise ParameterError(f"{name} must be an integer ≥ 0, got {v!r}")
         if self.candidate_band not in ("absolute", "relative"):
             raise ParameterError(f"candidate_band must be 'absolute' or 'relative', got {self.candidate_band!r}")
         if self.contact_acceleration not in ("nesterov", "none"):
@@ -1777,7 +1810,8 @@ class ChainSolver:
         KC.project_coupled(body, partner, normal, lever, plever, target, u, self._writable(model.mass),
                            np.ascontiguousarray(R), self._writable(model.inertia), np.zeros(0), np.zeros(0), 0.0,
                            int(o.qp_iterations), float(o.qp_tolerance), lam_out, fr_out, jk, jl, jrk, jrl, jt,
-                           jc, jw0, chain_off, -1, par, momentum=self._momentum)
+                           jc, jw0, chain_off, -1, par, momentum=self._momentum,
+                           root_sweeps=int(o.root_sweeps), root_segments=int(o.root_segments))
         return u
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
@@ -1847,7 +1881,7 @@ class ChainSolver:
             sw, change, promoted = kern(*setup, *geo, tg, u, mass, R_mid, inertia, mc, ms,
                                         float(o.restitution), cap, tol, lam_p,
                                         fr_p, *joints, n_rows, bool(joints_last), body_part, self._momentum,
-                                        *screen)
+                                        *screen, int(o.root_sweeps), int(o.root_segments))
             if change > tol:  # stopped by the sweep cap, not by the stopping rule
                 self._qp_capped += 1
             self._qp_residual = max(self._qp_residual, float(change))
