@@ -451,6 +451,11 @@ Issue 10, twentieth session (the three captured solves of one resting step, t = 
   t = 0.4 → 0.5 s 132 → 62 pairs (1.77 → 1.82 s per step); 0.45 → 0.475 s 37 → 7; at rest 1.475 → 1.5 s 155 → 117
   (1.43 → 1.56 s per step); the settled 40 × 30 strand 51 µm / 4 pairs → 39 µm / 1 pair. See the option's notes
   (16 sweeps: more cost, not consistently fewer crossings). The crossings are fewer, not gone.
+* The reported penetration beyond 2r (nineteenth session, "not checked") is checked now: it is the rows' gaps at
+  t_i, first order, not an overlap. One step from the saved t = 1.5 s state reports 96 µm; that is the t_i gap of a
+  row (segment 9 of fibres 118 and 312) whose mid-step gap is −19 µm, and the deepest mid-step gap of the step is
+  −66.6 µm (no row beyond −2r at mid-step). StepStats.max_penetration therefore overstates the overlap where the
+  first half step moves a pair fast relative to itself (first order over ½Δt); left as it is (documented here).
 * Goal 0.2 s per step: not met; ≈ 7× off at rest in these 25-step runs (1.4–1.6 s per step; 1.0–1.3 s in the
   nineteenth session's).
 """

@@ -522,7 +522,8 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     whole chain's first ones; the joint after them keeps its impulse), then a visit of every row that
     touches one of those segments, forwards and backwards in turn. Block Gauss–Seidel steps in another
     order: the fixed point is the same, and the sweep that ends a converged iteration is a plain full
-    sweep. 0 (either): the former iterates, bitwise. Why the root: a push on a segment next to the anchored
+    sweep (the Nesterov extrapolation after the sweep counts the root sweeps' changes as the sweep's). 0
+    (either): the former iterates, bitwise. Why the root: a push on a segment next to the anchored
     root moves little once the stiff joints are solved, so each contact visit there (its step sized by the
     free bodies' Delassus diagonal W₀₀) moves the solved chain by only a small part of what it asks for
     (measured on the reference scene at rest, 400 sampled rows: W₀₀ with the chains solved / without is
