@@ -449,7 +449,9 @@ Issue 10, twentieth session (the three captured solves of one resting step, t = 
   no root row carries an impulse then).
   Full size, aniso, from the saved states (pairs overlapping by more than a radius, all but a few on segments 0–7):
   t = 0.4 → 0.5 s 132 → 62 pairs (1.77 → 1.82 s per step); 0.45 → 0.475 s 37 → 7; at rest 1.475 → 1.5 s 155 → 117
-  (1.43 → 1.56 s per step); the settled 40 × 30 strand 51 µm / 4 pairs → 39 µm / 1 pair. See the option's notes
+  (1.43 → 1.56 s per step); the settled 40 × 30 strand 51 µm / 4 pairs → 39 µm / 1 pair (``--fibres 40 --segments 30
+  --settle 1500 --steps 20 --coupled-only``: 0.062 → 0.068 s per step, reported max penetration 50.9 → 36.6 µm,
+  against ``--set root_sweeps=0`` in the same session). See the option's notes
   (16 sweeps: more cost, not consistently fewer crossings). The crossings are fewer, not gone.
 * The reported penetration beyond 2r (nineteenth session, "not checked") is checked now: it is the rows' gaps at
   t_i, first order, not an overlap. One step from the saved t = 1.5 s state reports 96 µm; that is the t_i gap of a
