@@ -26,7 +26,7 @@ from numba import njit, prange
 
 from headsim.solvers._kernels.chains import _frame, _inv_inertia_into, _polygon_qp, inv6_into
 from headsim.solvers._kernels.chains_pairs import row_normal_speed
-from headsim.solvers._kernels.twins import serial_and_parallel
+from headsim.solvers._kernels.twins import called_twin, serial_and_parallel
 
 # The partial sweeps' slack band per row (see the sweep schedule in _coupled_iterate_impl): this factor × the
 # point-velocity changes of its two bodies since the previous full sweep. Measured with the captured solves of
@@ -198,6 +198,11 @@ def _apply_joint_impulse(u, b, r, dq, j, Iw, mass, sign):
     for z in range(3):
         u[b, z] += dq[j, z] * im
         u[b, 3 + z] += sign * (Iw[j, z, 0] * t0 + Iw[j, z, 1] * t1 + Iw[j, z, 2] * t2)
+
+
+# a called (not inlined) copy for the root sweeps (see ``root_sweeps`` of _coupled_iterate_impl): a third inlined
+# copy of the chain solve lengthened the compilation of the two kernel builds by ≈ 24 s (measured)
+_chain_sweep_called = called_twin(_chain_sweep)
 
 
 @njit(cache=True, inline="always")
@@ -416,6 +421,29 @@ def _solve_friction(c, sc, a, b, vr, lam, fr, u, MA, MB, W, mu_cos, mu_sin, m, p
     fr[c, 0] = nx
     fr[c, 1] = ny
     return ch
+
+
+@njit(cache=True)
+def _visit_root_rows(forward, root_rows, n_root, n0, pslot, body, partner, JA, JB, MA, MB, W, target, lam, fr, u, dun,
+                     mu_cos, mu_sin, m, vr, px, py, Bl, cl):
+    """One Gauss–Seidel visit of every root row (``root_rows[:n_root]``, forwards or backwards; ``root_sweeps`` of
+    :func:`_coupled_iterate_impl`): the normal row, then the friction block, as in the kernel's sweeps."""
+    for q in range(n_root):
+        c = root_rows[q] if forward else root_rows[n_root - 1 - q]
+        sc = _slot(c, n0, pslot)
+        a = body[c]
+        b = partner[c]
+        vr[0] = _row_speed(JA, JB, sc, 0, a, b, u)
+        new = lam[c] + (target[c] - vr[0]) / W[sc, 0, 0]
+        if new < 0.0:
+            new = 0.0
+        if new == 0.0 and lam[c] == 0.0 and fr[c, 0] == 0.0 and fr[c, 1] == 0.0:
+            continue
+        for k in range(1, 3):
+            vr[k] = _row_speed(JA, JB, sc, k, a, b, u)
+        _set_normal_impulse(c, sc, a, b, new, vr, lam, u, dun, MA, MB, W)
+        if m >= 3:
+            _solve_friction(c, sc, a, b, vr, lam, fr, u, MA, MB, W, mu_cos, mu_sin, m, px, py, Bl, cl)
 
 
 @njit(cache=True, inline="always")
@@ -799,26 +827,11 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                 for ch in prange(nch):
                     j0 = chain_off[ch]
                     if joint_k[j0] < 0:
-                        _chain_sweep(j0, min(chain_off[ch + 1], j0 + root_segments), joint_k, joint_l, joint_rk,
-                                     joint_rl, joint_target, joint_compliance_inv, joint_w0, u, mass, Ik, Il, Dinv,
-                                     G, Up, Lam, y, dq)
-                for q in range(n_root):
-                    c = root_rows[q] if rs % 2 == 0 else root_rows[n_root - 1 - q]
-                    sc = _slot(c, n0, pslot)
-                    a = body[c]
-                    b = partner[c]
-                    rvr[0] = _row_speed(JA, JB, sc, 0, a, b, u)
-                    new = lam[c] + (target[c] - rvr[0]) / W[sc, 0, 0]
-                    if new < 0.0:
-                        new = 0.0
-                    if new == 0.0 and lam[c] == 0.0 and fr[c, 0] == 0.0 and fr[c, 1] == 0.0:
-                        continue
-                    for k in range(1, 3):
-                        rvr[k] = _row_speed(JA, JB, sc, k, a, b, u)
-                    _set_normal_impulse(c, sc, a, b, new, rvr, lam, u, dun, MA, MB, W)
-                    if m >= 3:
-                        _solve_friction(c, sc, a, b, rvr, lam, fr, u, MA, MB, W, mu_cos, mu_sin, m, rpx, rpy, rBl,
-                                        rcl)
+                        _chain_sweep_called(j0, min(chain_off[ch + 1], j0 + root_segments), joint_k, joint_l,
+                                            joint_rk, joint_rl, joint_target, joint_compliance_inv, joint_w0, u,
+                                            mass, Ik, Il, Dinv, G, Up, Lam, y, dq)
+                _visit_root_rows(rs % 2 == 0, root_rows, n_root, n0, pslot, body, partner, JA, JB, MA, MB, W, target,
+                                 lam, fr, u, dun, mu_cos, mu_sin, m, rvr, rpx, rpy, rBl, rcl)
         dot = 0.0  # the momentum's restart test over this sweep's listed rows (before promotions move them)
         if momentum > 0.0:
             for dd in prange(nd + 1):

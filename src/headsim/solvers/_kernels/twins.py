@@ -26,6 +26,18 @@ def parallel_twin(func):
     return njit(cache=True, parallel=True)(twin)
 
 
+def called_twin(func):
+    """``njit(cache=True)`` build of a copy of ``func`` (a dispatcher's Python function or a plain function)
+    named ``<name>_called``, with its own cache files: a separately compiled, called version of an
+    ``inline="always"`` helper, for the places where another inlined copy would only lengthen the
+    compilation of the kernel that uses it."""
+    f = getattr(func, "py_func", func)
+    twin = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_called", f.__defaults__, f.__closure__)
+    twin.__qualname__ = f.__qualname__ + "_called"
+    twin.__doc__ = f.__doc__
+    return njit(cache=True)(twin)
+
+
 def serial_and_parallel(func):
     """(serial, parallel) dispatchers of ``func``: ``njit(cache=True)`` and :func:`parallel_twin`."""
     return njit(cache=True)(func), parallel_twin(func)
