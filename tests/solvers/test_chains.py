@@ -936,7 +936,8 @@ def _root_comb(fibres=6, segments=12, rows_per_fibre=4, seed=5):
     twists; contact rows (frictionless, target 0: the velocity solve) between the first ``rows_per_fibre``
     segments of neighbouring fibres, normal +x, and the joint rows of every fibre (root anchor + implicit
     bending springs, as the solver builds them). Returns the arguments of
-    :func:`~headsim.solvers._kernels.chains_coupled.project_coupled` before ``restitution`` and after it."""
+    :func:`~headsim.solvers._kernels.chains_coupled.project_coupled` up to ``restitution``, its joint arguments
+    and the segments per fibre."""
     import types
 
     n = segments
@@ -971,12 +972,12 @@ def test_root_sweeps_change_the_path_not_the_fixed_point():
     is sized by the free segment's response."""
     from headsim.solvers._kernels import chains_coupled as KC
 
-    def run(root_sweeps, sweeps, tol):
+    def run(root_sweeps, sweeps, tol, root_segments=4):
         before, joints, n = _root_comb()
         nc = len(before[0])
         lam, fr = np.zeros(nc), np.zeros((nc, 2))
         sw, change, _ = KC.project_coupled(*before, sweeps, tol, lam, fr, *joints, momentum=1.0,
-                                           root_sweeps=root_sweeps, root_segments=4)
+                                           root_sweeps=root_sweeps, root_segments=root_segments)
         return before[6], lam, sw, change, n
 
     u0, lam0, sw0, ch0, n = run(0, 1_000_000, 1e-13)
@@ -989,11 +990,7 @@ def test_root_sweeps_change_the_path_not_the_fixed_point():
     err1 = np.abs(run(16, 40, 0.0)[0] - u0)[root, :3].max()
     assert err1 < err0
     # root_segments = 0 (no region) is the plain iteration, bitwise
-    before, joints, _ = _root_comb()
-    nc = len(before[0])
-    lam, fr = np.zeros(nc), np.zeros((nc, 2))
-    KC.project_coupled(*before, 40, 0.0, lam, fr, *joints, momentum=1.0, root_sweeps=16, root_segments=0)
-    assert np.array_equal(before[6], run(0, 40, 0.0)[0])
+    assert np.array_equal(run(16, 40, 0.0, root_segments=0)[0], run(0, 40, 0.0)[0])
 
 
 def test_fibre_domains_are_balanced_and_cut_few_rows():

@@ -423,6 +423,13 @@ def _solve_friction(c, sc, a, b, vr, lam, fr, u, MA, MB, W, mu_cos, mu_sin, m, p
     return ch
 
 
+@njit(cache=True, inline="always")
+def _touches_root(root_pos, a, b):
+    """Whether a contact between bodies a and b (−1: obstacle) touches the root region (``root_pos`` ≥ 0: a
+    body's segment number from its anchored root; ``root_sweeps`` of :func:`_coupled_iterate_impl`)."""
+    return root_pos[a] >= 0 or (b >= 0 and root_pos[b] >= 0)
+
+
 @njit(cache=True)
 def _visit_root_rows(forward, root_rows, n_root, n0, pslot, body, partner, JA, JB, MA, MB, W, target, lam, fr, u, dun,
                      mu_cos, mu_sin, m, vr, px, py, Bl, cl):
@@ -729,7 +736,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                 for j in range(j0, min(chain_off[ch + 1], j0 + root_segments)):
                     root_pos[joint_l[j]] = j - j0
         for c in range(n_on):
-            if root_pos[body[c]] >= 0 or (partner[c] >= 0 and root_pos[partner[c]] >= 0):
+            if _touches_root(root_pos, body[c], partner[c]):
                 root_rows[n_root] = c
                 n_root += 1
     rvr = np.zeros(3)
@@ -913,7 +920,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                         lam_prev[c] = 0.0
                         lam_start[c] = 0.0
                     prom_rows[n_prom] = c
-                    if root_sweeps > 0 and (root_pos[a] >= 0 or (b >= 0 and root_pos[b] >= 0)):
+                    if root_sweeps > 0 and _touches_root(root_pos, a, b):
                         root_rows[n_root] = c
                         n_root += 1
                     n_prom += 1

@@ -16,26 +16,27 @@ import types
 from numba import njit
 
 
+def _renamed_copy(func, suffix):
+    """A copy of ``func`` (a dispatcher's Python function or a plain function) named ``<name><suffix>``: same
+    code, globals, defaults and closure; compiled, it gets cache files of its own."""
+    f = getattr(func, "py_func", func)
+    twin = types.FunctionType(f.__code__, f.__globals__, f.__name__ + suffix, f.__defaults__, f.__closure__)
+    twin.__qualname__ = f.__qualname__ + suffix
+    twin.__doc__ = f.__doc__
+    return twin
+
+
 def parallel_twin(func):
     """``njit(cache=True, parallel=True)`` build of a copy of ``func`` named ``<name>_parallel`` (same code,
     globals, defaults and closure; its own cache files)."""
-    twin = types.FunctionType(func.__code__, func.__globals__, func.__name__ + "_parallel", func.__defaults__,
-                              func.__closure__)
-    twin.__qualname__ = func.__qualname__ + "_parallel"
-    twin.__doc__ = func.__doc__
-    return njit(cache=True, parallel=True)(twin)
+    return njit(cache=True, parallel=True)(_renamed_copy(func, "_parallel"))
 
 
 def called_twin(func):
-    """``njit(cache=True)`` build of a copy of ``func`` (a dispatcher's Python function or a plain function)
-    named ``<name>_called``, with its own cache files: a separately compiled, called version of an
-    ``inline="always"`` helper, for the places where another inlined copy would only lengthen the
-    compilation of the kernel that uses it."""
-    f = getattr(func, "py_func", func)
-    twin = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_called", f.__defaults__, f.__closure__)
-    twin.__qualname__ = f.__qualname__ + "_called"
-    twin.__doc__ = f.__doc__
-    return njit(cache=True)(twin)
+    """``njit(cache=True)`` build of a copy of ``func`` named ``<name>_called``, with its own cache files: a
+    separately compiled, called version of an ``inline="always"`` helper, for the places where another
+    inlined copy would only lengthen the compilation of the kernel that uses it."""
+    return njit(cache=True)(_renamed_copy(func, "_called"))
 
 
 def serial_and_parallel(func):
