@@ -105,6 +105,25 @@ iteration). Issue 10, serial kernel, machine otherwise idle:
   (CPU within 20 % of the plain sweeps at equal counts); largest violation at 60 sweeps 1.3e-2 → 3.1e-4 m/s.
   The stopping rule without a cap now stops after 656 sweeps (1e-5 m/s, 8.6e-5 off; the plain iteration
   needed 2,892–3,249 on this scene before, see above); at the default cap of 30 the answer is 0.267 off.
+
+Issue 10, twenty-first session. The captured calls are read by argument name (``iterate_args``): the root sweeps'
+two arguments, appended in the twentieth session, had shifted the tail this script addressed by position
+(``a[-4]`` was the momentum), so it had stopped running. A small ringlet (``--fibres 30 --segments 30 --settle
+20``, t = 20 ms, 1,091 rows, 1,718 candidates) shows what "growing impulses" look like there: the normal
+impulses sum to 2.8e-7 N s after 30 accelerated sweeps, 6.4e-6 after 300, 2.3e-5 after 3,000 and 2.5e-5 after
+20,000 (largest violation 2.1e-3 → 1.9e-5 m/s), and every one of the largest impulses sits on a root segment
+(segment 0) pressed between two neighbouring root segments from opposite sides (normals at cos −1.00): the
+anchored roots give way so little that holding them apart takes impulses ≈ 100 × those of the capped solve,
+and the 30-sweep answer is 0.92 off the 20,000-sweep one (20,000 plain sweeps: 0.56). On the derived geometry
+(120 × 100, t ≈ 0.25 s, the step's second solve: 24 k rows, 116 k candidates) the impulse sum is 3.07e-6 N s
+after 30 sweeps and 3.12e-6 after 300 and 3,000, the largest impulses mid-fibre: no such pinch there.
+Two accelerations of the Gauss–Seidel were measured on captured solves of that step (scripts not kept). Anderson
+acceleration (type II, memory 5–10, every 1–3 plain sweeps) of the impulses, on the step's second solve against
+a 4,000-sweep answer: after 60 sweeps a largest bound violation of 5.5–7.0 mm/s (plain 13.3, the shipped
+Nesterov 1.1), after 120 sweeps 3.2–3.5 (plain 6.9, Nesterov 0.52). MPRGP (Dostál's proportioning / CG for the
+dual QP on the joint-eliminated Delassus operator, every product one exact chain solve, rows scaled by their free
+W₀₀), on the step's first solve made frictionless: the largest violation went from 40.6 mm/s (the warm start) to
+33–38 mm/s in 180 products, then a zero division (a degenerate proportioning step). Neither is kept: the Nesterov-accelerated Gauss–Seidel stays the best measured.
 """
 
 from __future__ import annotations
@@ -116,11 +135,24 @@ import time
 import numpy as np
 
 
+def iterate_args():
+    """Position of every argument of ``coupled_iterate`` by name: the captured calls are positional lists, and
+    reading them by name keeps this benchmark right when the kernel gains arguments (the twentieth session's
+    ``root_sweeps``, ``root_segments`` shifted the tail that ``a[-4]`` used to address)."""
+    import inspect
+
+    from headsim.solvers._kernels import chains_coupled as KC
+
+    return {name: i for i, name in enumerate(inspect.signature(KC.coupled_iterate.py_func).parameters)}
+
+
 def _residuals(a, u):
     """(max bound violation m/s, max joint gap-rate residual m/s) of twists u for the captured arguments."""
-    (body, partner, normal, lever, plever, target) = a[10:16]
-    jk, jl, jrk, jrl, jt = a[27:32]
-    n_rows = a[35]
+    ix = iterate_args()
+    body, partner, normal, lever, plever, target = (a[ix[k]] for k in ("body", "partner", "normal", "lever",
+                                                                         "partner_lever", "target"))
+    jk, jl, jrk, jrl, jt = (a[ix[k]] for k in ("joint_k", "joint_l", "joint_rk", "joint_rl", "joint_target"))
+    n_rows = a[ix["n_listed_rows"]]
 
     def vel(b, r):
         return u[b, :3] + np.cross(u[b, 3:], r)
@@ -179,36 +211,38 @@ def main():
     finally:
         KC.coupled_iterate, KC.coupled_iterate_parallel = originals
     a0 = captured[0]
-    u_minus, mass, R, inertia = a0[16], a0[17], a0[18], a0[19]
+    ix = iterate_args()
+    U, LAM = ix["u"], ix["lam_out"]
+    u_minus, mass, R, inertia = (a0[ix[k]] for k in ("u", "mass", "R", "inertia"))
     Iw = np.einsum("sac,sc,sbc->sab", R, inertia, R)
 
     def m2(du):
         return float((mass * (du[:, :3] ** 2).sum(1)).sum() + np.einsum("sa,sab,sb->", du[:, 3:], Iw, du[:, 3:]))
 
-    print(f"t = {state.time:.3f} s, {scene.model.n_segments} segments, {a0[35]} rows from the start, "
-          f"{len(a0[10]) - a0[35]} candidates, {len(a0[27])} joints")
+    print(f"t = {state.time:.3f} s, {scene.model.n_segments} segments, {a0[ix['n_listed_rows']]} rows from the start, "
+          f"{len(a0[ix['body']]) - a0[ix['n_listed_rows']]} candidates, {len(a0[ix['joint_k']])} joints")
     results = {}
     # every count with the plain Gauss–Seidel (momentum 0) and the Nesterov extrapolation (momentum 1,
     # ChainOptions.contact_acceleration); the reference is the largest count of the accelerated iteration
     for mom in (1.0, 0.0):
         for n in sorted(args.sweeps, reverse=True):
             a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0]
-            a[23], a[24], a[-4] = int(n), 0.0, mom  # max_iter, tol, momentum (then the screening arguments)
+            a[ix["max_iter"]], a[ix["tol"]], a[ix["momentum"]] = int(n), 0.0, mom
             c = time.process_time()
             sw, change, _ = KC.coupled_iterate(*a)
             results[f"{n} {'nesterov' if mom else 'plain'}"] = (
-                time.process_time() - c, a[16], sw, change, _residuals(a, a[16]), a[25].max(initial=0.0), a[25].sum())
+                time.process_time() - c, a[U], sw, change, _residuals(a, a[U]), a[LAM].max(initial=0.0), a[LAM].sum())
     ref = results[f"{max(args.sweeps)} nesterov"][1]
     # the stopping rule (ChainOptions.contact_tolerance) with the cap of the shipped options and without a cap
     tol = float(scene.options.contact_tolerance)
     for label, cap in ((f"tol {tol:g}, cap {scene.options.qp_iterations}", scene.options.qp_iterations),
                        (f"tol {tol:g}, no cap", max(args.sweeps))):
         a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0]
-        a[23], a[24] = int(cap), tol
+        a[ix["max_iter"]], a[ix["tol"]] = int(cap), tol
         c = time.process_time()
         sw, change, _ = KC.coupled_iterate(*a)
-        results[label] = (time.process_time() - c, a[16], sw, change, _residuals(a, a[16]), a[25].max(initial=0.0),
-                          a[25].sum())
+        results[label] = (time.process_time() - c, a[U], sw, change, _residuals(a, a[U]), a[LAM].max(initial=0.0),
+                          a[LAM].sum())
     for n, (cpu, u, sw, change, (viol, jr), lmax, lsum) in results.items():
         err = np.sqrt(m2(u - ref) / m2(ref - u_minus))
         eabs = 0.5 * m2(u - ref)

@@ -47,16 +47,26 @@ import time
 import numpy as np
 
 
-def _residuals(a, u):
-    """Largest normal-bound violation and joint residual (m/s) of one captured solve: the same measure as
-    ``bench_contact_convergence.py`` (imported from it, so that the two benchmarks report one metric)."""
+def _convergence_helpers():
+    """(``_residuals``, ``iterate_args``) of ``bench_contact_convergence.py``: the same measure of a captured
+    solve, and its arguments read by name, so that the two benchmarks report one metric."""
     import sys
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench_contact_convergence import _residuals as residuals
+    from bench_contact_convergence import _residuals, iterate_args
 
-    return residuals(a, u)
+    return _residuals, iterate_args
+
+
+def _kinetic_metric(mass, R, inertia):
+    """Squared kinetic-metric norm ‖du‖²_M of twist differences (S, 6), M at the rotations R."""
+    Iw = np.einsum("sac,sc,sbc->sab", R, inertia, R)
+
+    def m2(du):
+        return float((mass * (du[:, :3] ** 2).sum(1)).sum() + np.einsum("sa,sab,sb->", du[:, 3:], Iw, du[:, 3:]))
+
+    return m2
 
 
 def main():
@@ -107,44 +117,47 @@ def main():
     if args.serial:
         kernels.append(("serial", KC.coupled_iterate))
     totals = {}
+    residuals, iterate_args = _convergence_helpers()
+    ix = iterate_args()
+    U = ix["u"]
     for i, a0 in enumerate(captured):
-        body_part, momentum, screen = a0[-5], a0[-4], a0[-3:]
-        n_rows = a0[35]
-        body, partner = a0[10][:n_rows], a0[11][:n_rows]
+        body_part = a0[ix["body_part"]]
+        n_rows = a0[ix["n_listed_rows"]]
+        body, partner = a0[ix["body"]][:n_rows], a0[ix["partner"]][:n_rows]
         pa = body_part[body]
         pb = np.where(partner >= 0, body_part[np.maximum(partner, 0)], pa)
-        print(f"solve {i}: {n_rows} rows from the start, {len(a0[10]) - n_rows} candidates, "
-              f"{len(a0[27])} joints, push-out {a0[36]}; domains {np.bincount(pa[pa == pb])} rows, "
-              f"cross {np.mean(pa != pb):.3f}")
-        ref = None
-        m2 = None
-        if args.ref_sweeps > 0:
-            a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0[:-5]]
-            a[23], a[24] = args.ref_sweeps, 0.0
-            KC.coupled_iterate_parallel(*a, np.zeros(0, np.int64), momentum, *screen)
-            ref = a[16]
-            R, mass, inertia = a0[18], a0[17], a0[19]
-            Iw = np.einsum("sac,sc,sbc->sab", R, inertia, R)
+        print(f"solve {i}: {n_rows} rows from the start, {len(a0[ix['body']]) - n_rows} candidates, "
+              f"{len(a0[ix['joint_k']])} joints, push-out {a0[ix['joints_last']]}; domains "
+              f"{np.bincount(pa[pa == pb])} rows, cross {np.mean(pa != pb):.3f}")
 
-            def m2(du):
-                return float((mass * (du[:, :3] ** 2).sum(1)).sum() + np.einsum("sa,sab,sb->", du[:, 3:], Iw,
-                                                                                 du[:, 3:]))
+        def run(kern, part, **changes):
+            """The captured call with these arguments replaced (and the body domains ``part``): (arguments after
+            the call, wall s, CPU s, kernel result)."""
+            a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0]
+            a[ix["body_part"]] = part
+            for k, v in changes.items():
+                a[ix[k]] = v
+            w0, c0 = time.perf_counter(), time.process_time()
+            out = kern(*a)
+            return a, time.perf_counter() - w0, time.process_time() - c0, out
+
+        ref = m2 = None
+        if args.ref_sweeps > 0:
+            ref = run(KC.coupled_iterate_parallel, np.zeros(0, np.int64), max_iter=args.ref_sweeps, tol=0.0)[0][U]
+            m2 = _kinetic_metric(*(a0[ix[k]] for k in ("mass", "R", "inertia")))
         for kname, kern in kernels:
             variants = (("1 domain (former)", np.zeros(0, np.int64)), (f"{int(body_part.max()) + 1} domains", body_part))
             for rep in range(args.repeats):
                 base = None
                 for vname, part in variants:
-                    a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0[:-5]]
-                    w0, c0 = time.perf_counter(), time.process_time()
-                    sw, change, prom = kern(*a, part, momentum, *screen)
-                    w, c = time.perf_counter() - w0, time.process_time() - c0
+                    a, w, c, (sw, change, prom) = run(kern, part)
                     base = w if base is None else base
                     key = (kname, vname)
                     totals.setdefault(key, []).append(w)
-                    viol, jr = _residuals(a, a[16])
+                    viol, jr = residuals(a, a[U])
                     err = ""
                     if ref is not None:
-                        err = f", rel. M-error vs {args.ref_sweeps} sweeps {np.sqrt(m2(a[16] - ref) / m2(ref - a0[16])):.4f}"
+                        err = f", rel. M-error vs {args.ref_sweeps} sweeps {np.sqrt(m2(a[U] - ref) / m2(ref - a0[U])):.4f}"
                     print(f"  {kname:8s} {vname:18s} rep {rep}: wall {w:.3f} s (× {w / base:.2f}), CPU {c:.3f} s, "
                           f"{sw} sweeps, change {change:.2e} m/s, violation {viol:.2e}, joint residual {jr:.2e}"
                           f"{err}", flush=True)
