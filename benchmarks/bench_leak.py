@@ -35,7 +35,6 @@ def main(argv=None) -> None:
     face = load_surface(face_path("neutral"))
     # the CLI's mask (headsim demo: --mask-edge 4 mm)
     problem = prepare_fit(face, make_mask("nasal-M", edge_length=4e-3), FitOptions(), landmarks=find_landmarks(face))
-    fitter = problem_fit
     if args.condensed:
         from headsim.mask.condensed import condense_fit, condensed_fit
 
@@ -43,6 +42,8 @@ def main(argv=None) -> None:
 
         def fitter(_p, f, warm_start=None):
             return condensed_fit(cf, f)
+    else:
+        fitter = problem_fit
     o = problem.options
     prev = None
     print("force N | strict  | leak L/min (viscous / orifice) | channels | widest gap at cut um | "

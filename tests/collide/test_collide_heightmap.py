@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from headsim.collide import Heightmap, TriangleBVH
+from headsim.collide import Heightmap
 from headsim.collide._reference import heightmap_bruteforce
 from headsim.errors import ParameterError
 

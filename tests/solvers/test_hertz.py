@@ -1,6 +1,5 @@
 """Hertz contact: rigid sphere on a thick stable-neo-Hookean block, quasi-static Newton (issue 5)."""
 
-import numpy as np
 import pytest
 
 from headsim.solvers.hertz import hertz_contact_radius, hertz_indentation

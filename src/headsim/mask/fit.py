@@ -416,12 +416,12 @@ whether it is below the clinically acceptable ``leak_threshold_lpm``), and the d
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
-from headsim.errors import ConvergenceError, DivergenceError, HeadsimError, MeshError, ParameterError
+from headsim.errors import ConvergenceError, DivergenceError, ParameterError
 from headsim.mask.landmarks import Landmarks, find_landmarks
 from headsim.mask.leak import GAP_CAP, LARGE_LEAK_LPM, SKIN_ROUGHNESS, LeakEstimate, estimate_leak
 from headsim.mask.masks import MaskModel

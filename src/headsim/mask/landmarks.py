@@ -457,7 +457,7 @@ def find_landmarks(face: SurfaceMesh, forward=None, up=None) -> Landmarks:
     if pocket_plus is None or pocket_minus is None:
         raise _no_face(face, "no nasal bridge or subnasale concavity next to the nose tip in the midline profile")
     i_n, i_sn = pocket_plus, pocket_minus
-    tip_u, tip_a = u[i_tip], a[i_tip]
+    tip_u = u[i_tip]
     if not 15e-3 <= u[i_n] - tip_u <= 90e-3:
         raise _no_face(face, f"nasion {1e3 * (u[i_n] - tip_u):.1f} mm above the nose tip (expected 15–90 mm)")
     if not 4e-3 <= tip_u - u[i_sn] <= 40e-3:

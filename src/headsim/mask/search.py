@@ -74,8 +74,6 @@ from dataclasses import dataclass, field
 from concurrent.futures import Executor
 from typing import Callable
 
-import numpy as np
-
 from headsim.errors import ConvergenceError, ParameterError
 from headsim.mask.fit import MAX_STRAP_FORCE, FitProblem, FitResult, check_force, problem_fit
 

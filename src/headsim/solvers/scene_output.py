@@ -81,7 +81,6 @@ def plot_scene_frames(result, path: Path, frames: list[int]) -> Path:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(frames), figsize=(4 * len(frames), 4), squeeze=False)
-    off = result.offsets
     for ax, k in zip(axes[0], frames):
         x = result.states[k].positions
         for b, colour in ((0, "tab:red"), (1, "tab:blue")):
