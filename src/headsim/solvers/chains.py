@@ -118,7 +118,8 @@ from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 
 import numpy as np
-import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
 
 from headsim.errors import DivergenceError, ParameterError
 from headsim.solvers._kernels import chains as K
@@ -775,8 +776,12 @@ class ChainOptions:
         redundant rows (two segments' end rows at one joint) are solved in least squares, inconsistent ones
         leave the set. When no such set is found the Gauss–Seidel answer is kept (:data:`EXACT_FAILURES`
         counts the reasons; the clamped bent fibre: 10 of 300 steps, 'inconsistent', none of them rising).
-        The dense systems are solved with one LU (a small negative diagonal on the multiplier block,
-        proximal refinement for redundant rows) with BLAS held to one thread.
+        The sparse KKT systems are solved with one SuperLU factorisation per round (a small negative diagonal on
+        the multiplier block, proximal refinement for redundant rows); their dense set-up products run with BLAS
+        held to one thread. On the 4-layer stack of the tests the solve fails in every step (192 × 'inconsistent',
+        8 × 'active set' in 200 steps: with every crossing sticking, the rows are redundant and the refinement
+        stalls at 1e-15 against a tolerance of 1e-10 |b| ≈ 1e-17; a tolerance relative to |K||y| accepts
+        multipliers of −1e10 there instead, and the active set then cycles), so there it only costs time.
     push_out_slop : fraction of the radius (default 1e-3, 35 nm at 70 µm) a penetration at t_i must exceed
         before the split push-out acts on it, under ``end_velocity_positions`` (the rows' t_i gaps are first
         order: the clamped bent fibre reported 0.2 pm–3 nm depths every step, and pushing them out raised
@@ -911,6 +916,28 @@ class ChainOptions:
 
         The crossings are fewer, not gone: a pair whose centre lines already cross (overlap ≈ 70 µm) has no
         consistent normal, and the deepest overlap stays at 69–70 µm in the full-size runs.
+    persistent_normals : coupled mode, opt-in (default False; issue 10, "no tunnelling"): a fibre pair that
+        penetrates (gap < 0) in this step and did in the previous one keeps the side of its previous normal. The
+        normal of two capsules is the direction between the closest points of their axes, and it reverses when
+        the axes pass through each other: a pair pressed to an overlap of nearly 2r (its axes ≈ 1 µm apart)
+        whose axes cross within a step then gets a normal that points through its partner, and its contact row
+        holds it on the wrong side (tunnelled). With this option such a row keeps the former side: its normal is
+        reversed, its gap becomes the depth along that side, −(d + r_a + r_b) (d the axes' distance, i.e.
+        between −2r and −4r for equal radii), its contact points move to the other sides of the axes, and it is
+        a row from the start, so the push-out moves the pair back the way it came where the solve can move it:
+        two crossed free fibres driven through each other (the tests) are held and pushed back to contact on
+        their side, and tunnel without it. Why not the default (measured on the 120 × 100 drape, derived
+        geometry, aniso, from a saved t = 0.5 s state, 150 steps; issue 10, twenty-first session): without it
+        0–6 fibre pairs per step reverse their normal at gaps of −52 to −70 µm, all but one on segments 1–3
+        (the root region, see ``root_sweeps``). With it those rows are held (5 at the start, 40–64 from
+        t = 0.56 s), but the capped solves do not stop the root segments: the held pairs keep moving through,
+        their axes 20–30 µm past the partner after 30 steps and up to 2r (70 µm: touching on the far side)
+        after 75, and the held rows then keep them overlapping where the former normals let them separate on
+        the far side. Capsule pairs of different fibres overlapping by more than r at the end of a step, with /
+        without: 22 / 24 after 5 steps, 19 / 52 after 30, 35 / 81 after 60, 48 / 96 after 105, 77 / 36 after
+        150; ``StepStats.max_penetration`` (which counts a held row's depth) 62–173 µm against 76–159 µm;
+        0.449 / 0.470 s per step. So it turns a tunnelling that the solve cannot prevent into a lasting overlap;
+        the cause is the solve's convergence at the anchored roots (see ``root_sweeps``), not the normal.
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -952,6 +979,7 @@ class ChainOptions:
     candidate_reserve: bool = True
     root_sweeps: int = 8
     root_segments: int = 8
+    persistent_normals: bool = False
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -1018,6 +1046,7 @@ class StepStats:
     reserve_promoted: int = 0  # candidate_reserve: of those, the ones a solve's twists closed (then solved again)
     reserve_resolves: int = 0  # candidate_reserve: passes solved again for them
     band_extensions: int = 0  # candidate_band="relative": detections with a band widened to the twist changes
+    reversed_normals: int = 0  # persistent_normals: fibre rows of the last pass held on their previous side
     seconds: dict = field(default_factory=dict)
 
     @property
@@ -1138,8 +1167,72 @@ def _polygon_radius(px: np.ndarray, py: np.ndarray, f: np.ndarray) -> np.ndarray
     return t.min(1)
 
 
+def _coo(m):
+    """Nonzero entries of a dense matrix, row-major: ((rows, columns, values), CSR row pointer)."""
+    r, c = np.nonzero(m)
+    return (r, c, m[r, c]), np.searchsorted(r, np.arange(m.shape[0] + 1))
+
+
+def _row_entries(coo, rows, scale=None):
+    """Entries of the given rows of a matrix from :func:`_coo`, as (local row i of ``rows[i]``, column, value),
+    the values multiplied by ``scale[i]`` when given."""
+    (r, c, v), ptr = coo
+    counts = ptr[rows + 1] - ptr[rows]
+    idx = np.repeat(ptr[rows] - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+    local = np.repeat(np.arange(len(rows)), counts)
+    return local, c[idx], v[idx] if scale is None else v[idx] * scale[local]
+
+
+def _join_entries(*parts):
+    """Entries of several row blocks stacked, each shifted down by the row counts of the blocks before it:
+    parts are (entries, row count)."""
+    out, off = [], 0
+    for (lr, c, v), n_rows in parts:
+        out.append((lr + off, c, v))
+        off += n_rows
+    return tuple(np.concatenate(x) for x in zip(*out))
+
+
+def _active_set_kkt(N, Mt, joints, J, A, stick, ratio):
+    """KKT matrix of one round of :func:`_exact_final_solve` (:func:`_kkt_matrix`): M̃ (entries, :func:`_coo`), the
+    joint rows ``joints`` = (entries, row count), the contact rows J (normal, t₁, t₂: :func:`_coo` of (rows, N)
+    each), the active rows A with their sticking flags; a sliding row's impulse acts along n + its friction
+    ratio (``ratio[A]``) · (t₁, t₂), a sticking row's friction is its own unknown (tangent rows T u = 0). The
+    multipliers: the joints, the active rows' normal impulses, then the sticking rows' t₁ and t₂ impulses."""
+    na, ns = len(A), int(stick.sum())
+    At = A[stick]
+    normal = _row_entries(J[0], A)
+    effective = _join_entries((normal, 0), (_row_entries(J[1], A, np.where(stick, 0.0, ratio[A, 0])), 0),
+                              (_row_entries(J[2], A, np.where(stick, 0.0, ratio[A, 1])), 0))
+    tangent = ((_row_entries(J[1], At), ns), (_row_entries(J[2], At), ns))
+    constraint = _join_entries(joints, (normal, na), *tangent)
+    impulse = _join_entries(joints, (effective, na), *tangent)
+    return _kkt_matrix(N, Mt, constraint, impulse, joints[1] + na + 2 * ns)
+
+
+def _kkt_matrix(N, Mt, constraint, impulse, n_mult):
+    """Sparse KKT matrix of :func:`_exact_final_solve`, CSC with its duplicates summed: [[M̃, −Dᵀ], [C, 0]] (M̃ =
+    M + SᵀCS; C the constraint rows: joints, active normal rows, sticking tangent rows; D the directions their
+    multipliers act along: the same rows, a sliding contact's normal row plus its friction ratio × its tangent
+    rows), each given as entries (row, column, value) with rows counted from 0 in the multiplier block, and an
+    explicit zero on that block's diagonal. Returns the matrix, the column of every stored entry and the positions
+    of that diagonal in its data."""
+    cr, cc, cv = constraint
+    ir, ic, iv = impulse
+    d = np.arange(N, N + n_mult)
+    size = N + n_mult
+    K = scipy.sparse.coo_matrix((np.concatenate([Mt[2], cv, -iv, np.zeros(n_mult)]),
+                                 (np.concatenate([Mt[0], N + cr, ic, d]), np.concatenate([Mt[1], cc, N + ir, d]))),
+                                shape=(size, size)).tocsc()
+    K.sum_duplicates()
+    col = np.repeat(np.arange(size), np.diff(K.indptr))
+    diag = np.nonzero((K.indices == col) & (col >= N))[0]
+    assert len(diag) == n_mult
+    return K, col, diag
+
+
 def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=600, rounds=20):
-    """The velocity solve's problem solved exactly (dense KKT) on the active set the Gauss–Seidel found
+    """The velocity solve's problem solved exactly (sparse KKT, SuperLU) on the active set the Gauss–Seidel found
     (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target (targets (rows,) m/s), a sticking
     contact (friction strictly inside the polygon λ·conv{μ_β d_β} at the Gauss–Seidel answer) T u = 0, a sliding
     one keeps the direction and ratio to λ of its friction impulse; the joints J u = target and their spring
@@ -1206,52 +1299,53 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
     px, py = polygon
     frictional = len(px) > 0 and np.hypot(px, py).max() > 0.0
     stick = active & (np.linalg.norm(ratio, axis=1) < _polygon_radius(px, py, ratio) * (1.0 - 1e-6))
+    # the KKT matrix is sparse (block-tridiagonal chains, ≤ 12 entries per contact row): assembled from its entries
+    # and factorised by SuperLU (issue 10, twenty-first session: the 4-layer stack of the tests 78 → 23 ms per call,
+    # 96 → 39 ms per step, against the dense LU; the clamped bent fibre's 300 steps agree to 2e-19 m and 4e-24 J)
+    Mt_e = _coo(Mt)[0]
+    G_e = _coo(G)[0]
+    Je = [_coo(J[k]) for k in range(3)]
     for _ in range(rounds):
         A = np.nonzero(active)[0]
         st = stick[A]
         na, ns = len(A), int(st.sum())
         Ast, Asl = A[st], A[~st]
-        kkt = np.zeros((N + 3 * nj + na + 2 * ns,) * 2)
-        kkt[:N, :N] = Mt
-        kkt[:N, N:N + 3 * nj] = -G.T
-        Jn = J[0, A]
-        eff = Jn.copy()  # a sliding row's impulse: λ (n + friction ratio · (t₁, t₂))
-        eff[~st] += ratio[Asl, 0:1] * J[1, Asl] + ratio[Asl, 1:2] * J[2, Asl]
-        kkt[:N, N + 3 * nj:N + 3 * nj + na] = -eff.T
-        Ts = np.concatenate([J[1, Ast], J[2, Ast]])
-        kkt[:N, N + 3 * nj + na:] = -Ts.T
-        kkt[N:N + 3 * nj, :N] = G
-        kkt[N + 3 * nj:N + 3 * nj + na, :N] = Jn
-        kkt[N + 3 * nj + na:, :N] = Ts
+        n_mult = 3 * nj + na + 2 * ns
+        kkt, col, diag = _active_set_kkt(N, Mt_e, (G_e, 3 * nj), Je, A, st, ratio)
         b = np.concatenate([rhs, jt.reshape(-1), targets[A], np.zeros(2 * ns)])
         # equilibrate (velocities in m/s, impulses in N s differ by many orders), then solve; redundant rows (two
         # segments' end rows at one joint) make K singular: least squares, which must still meet every equation
-        sc = 1.0 / np.sqrt(np.maximum(np.abs(kkt).max(1), 1e-300))
-        Ks = kkt * sc[:, None] * sc[None, :]
+        row_max = np.zeros(N + n_mult)
+        np.maximum.at(row_max, kkt.indices, np.abs(kkt.data))
+        sc = 1.0 / np.sqrt(np.maximum(row_max, 1e-300))
+        Ks = kkt.copy()
+        Ks.data *= sc[kkt.indices] * sc[col]
         bs = b * sc
         tol = 1e-10 * max(np.abs(bs).max(), 1e-300)
         # one LU of K with a small negative diagonal δ on the multiplier block (regular even with redundant rows),
         # then proximal-point refinement y ← y + K_δ⁻¹(b − K y), which converges to a solution of K y = b when
         # one exists (a least-norm-like one for redundant rows) and stalls when the rows are inconsistent
         Kd = Ks.copy()
-        Kd[N:, N:] -= 1e-10 * np.eye(len(Kd) - N)
+        Kd.data[diag] -= 1e-10
         try:
-            lu = scipy.linalg.lu_factor(Kd, check_finite=False)
-        except (ValueError, np.linalg.LinAlgError):
+            lu = scipy.sparse.linalg.splu(Kd)
+        except RuntimeError:  # SuperLU: "Factor is exactly singular"
             return _fail("singular")
         y = np.zeros(len(bs))
         for _ in range(8):
             r = bs - Ks @ y
             if np.abs(r).max() <= tol:
                 break
-            y = y + scipy.linalg.lu_solve(lu, r, check_finite=False)
-        ok = np.isfinite(y).all() and np.abs(Ks @ y - bs).max() <= tol
+            y = y + lu.solve(r)
+        if not np.isfinite(y).all():
+            return _fail("singular")
+        ok = np.abs(Ks @ y - bs).max() <= tol
         sol = y * sc
         u = sol[:N]
         if not ok and np.abs(Ks @ y - bs).max() > tol:
             # inconsistent equalities (rows of one constraint with different targets): the rows the least-squares
             # velocity over-satisfies would be slack; leave them out
-            over = Jn @ u > targets[A] + 1e-12
+            over = J[0, A] @ u > targets[A] + 1e-12
             if not over.any():
                 return _fail("inconsistent")
             active[A[over]] = False
@@ -1385,6 +1479,7 @@ class ChainSolver:
         self._mu = options.friction.generators()
         self._momentum = 1.0 if options.contact_acceleration == "nesterov" else 0.0  # coupled kernels' Nesterov β scale
         self._warm = None  # (sorted keys, λ, friction) of the last step's contact solution (warm start)
+        self._normals = None  # (sorted keys, normals) of last step's penetrating fibre rows (persistent_normals)
         self._impulses = None
         self._promoted = 0  # candidate rows the last coupled solve added
         self._qp_capped = 0  # coupled solves of this step that hit the sweep cap
@@ -1619,7 +1714,9 @@ class ChainSolver:
                         for f in fields:
                             getattr(full, f)[i0:i0 + len(p.body)] = getattr(p, f)
                         i0 += len(p.body)
-                    return _Rows(*[getattr(full, f)[:n0 + k] for f in fields])
+                    out = _Rows(*[getattr(full, f)[:n0 + k] for f in fields])
+                    self._keep_normal_sides(out, model)
+                    return out
                 else:
                     parts.append(_Rows(a, b, n, la, lb, gap, z, ~z, a * S + b))
                     parts.append(_Rows(b, a, -n, lb, la, gap, z, z, b * S + a))
@@ -1628,6 +1725,31 @@ class ChainSolver:
             return _Rows(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z, np.zeros(0), np.zeros(0, bool),
                          np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0, bool))
         return _Rows(*[np.concatenate([getattr(p, k) for p in parts]) for k in _Rows.__dataclass_fields__])
+
+    def _keep_normal_sides(self, rows, model):
+        """``ChainOptions.persistent_normals``: in place, give every penetrating fibre row (gap < 0) whose pair
+        penetrated in the previous step with a normal pointing the other way that previous side: normal
+        reversed, contact points on the other sides of the axes (levers ± 2r n), gap −(d + r_a + r_b) =
+        −gap − 2(r_a + r_b), a row from the start."""
+        if self._normals is None or not self.options.persistent_normals:
+            return
+        keys, normals = self._normals
+        sel = np.flatnonzero((rows.gap < 0.0) & (rows.partner >= 0))
+        if not len(keys) or not len(sel):
+            return
+        j = np.minimum(np.searchsorted(keys, rows.key[sel]), len(keys) - 1)
+        same = keys[j] == rows.key[sel]
+        sel, j = sel[same], j[same]
+        sel = sel[np.einsum("ij,ij->i", rows.normal[sel], normals[j]) < 0.0]
+        if not len(sel):
+            return
+        n = rows.normal[sel]
+        ra, rb = model.radius[rows.body[sel]], model.radius[rows.partner[sel]]
+        rows.lever[sel] += 2.0 * ra[:, None] * n
+        rows.partner_lever[sel] -= 2.0 * rb[:, None] * n
+        rows.gap[sel] = -rows.gap[sel] - 2.0 * (ra + rb)
+        rows.normal[sel] = -n
+        rows.tight[sel] = True
 
     def _pair_mark(self) -> int:
         """The row kernels' ``mark_tight``: 0 per-body mode (every pair a row), 1 coupled (rows and candidates),
@@ -2001,6 +2123,7 @@ class ChainSolver:
             if not len(js):
                 continue
             cand = self._reserve_rows(res, res.idx[js])
+            self._keep_normal_sides(cand, model)
             if rounds < 3:
                 # the exact test of the suspects: the kernel's promotion rule at each solve's twists; where one
                 # closes, every suspect of the chunk becomes a candidate (a candidate only costs the screened test
@@ -2311,7 +2434,7 @@ class ChainSolver:
                     if o.exact_final_solve and self._impulses is not None:
                         from headsim.solvers.contact_qp import _blas_controller
 
-                        # one BLAS thread: the dense systems are small (a 300 × 300 LU took 0.1 s instead of 1 ms
+                        # one BLAS thread for the dense set-up products (a 300 × 300 LU took 0.1 s instead of 1 ms
                         # with the BLAS threads competing with the Numba ones on 2 loaded cores)
                         with _blas_controller().limit(limits=1, user_api="blas"):
                             exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
@@ -2400,6 +2523,11 @@ class ChainSolver:
             ob = rows.body[rows.obstacle]
             self._dhat[ob] = np.maximum(self._dhat[ob], _point_speed(u_end[ob], model.half_length[ob]))
         sweeps_max = sweeps_box[0]
+        self._normals = None
+        if rows is not None and o.persistent_normals and o.contact_coupling == "coupled":
+            pen = np.flatnonzero((rows.gap < 0.0) & (rows.partner >= 0))
+            pen = pen[np.argsort(rows.key[pen])]
+            self._normals = (rows.key[pen], rows.normal[pen])
         if o.warm_start and vel_impulses is not None:
             pr = np.nonzero(vel_impulses[0] > 0)[0]
             order_k = pr[np.argsort(rows.key[pr])]
@@ -2459,6 +2587,10 @@ class ChainSolver:
             st.contact_rows = int((rows.primary & rows.tight).sum()) + self._promoted
             st.promoted_rows = promoted
         st.obstacle_contacts = int((active & rows.obstacle).sum())
+        if o.persistent_normals and o.contact_coupling == "coupled":  # a reversed row's gap is below −(r_a + r_b)
+            fr = rows.partner >= 0
+            st.reversed_normals = int((rows.gap[fr] < -(model.radius[rows.body[fr]]
+                                                        + model.radius[rows.partner[fr]])).sum())
         st.fibre_contacts = st.contacts - st.obstacle_contacts
         # the mid-step state the step integrates from: the last pass's (first order from the detection state)
         st.max_penetration = float(max(0.0, -gaps_stat.min(initial=0.0)))
