@@ -203,19 +203,70 @@ STABLE_FRACTION = 0.05
 KE_FRACTION = 1e-2
 
 
+HELICAL_MODES = (("aniso", 0.75), ("iso", 1.5), ("none", 0.7))
+
+
+def _helical_run(mode, duration):
+    """One run of :func:`helical_runs`: (result, volumes (frames,) m³)."""
+    sc = build_drape_scene("sphere-helical", mode, n_fibres=7, segments=30, duration=duration)
+    res = run_drape(sc, record_every=10)
+    assert np.isfinite(res.polylines).all()
+    return res, np.array([bounding_box(p)[1] for p in res.polylines])
+
+
+def _shared_runs(directory, jobs, wait_s=1800.0):
+    """{name: job()} for jobs = {name: callable}, computed once per test session across pytest-xdist workers:
+    a worker claims a job by creating ``<name>.claim`` in ``directory`` (atomic, O_EXCL), runs it and writes
+    ``<name>.pkl``; the other workers run the jobs they claim and load the rest when written. (Without
+    sharing, the module-scoped fixture ran in both workers whenever its tests were split between them: two
+    × 200–280 s on 2 cores. pytest-xdist's ``--dist loadgroup`` does not keep them together under pytest 9.2:
+    it tags the groups through ``item._nodeid``, which pytest 9 no longer reads.) A claim whose result does
+    not appear within ``wait_s`` (its worker died) is run here."""
+    import os
+    import pickle
+    import time
+
+    out = {}
+    for name, job in jobs.items():
+        try:
+            os.close(os.open(directory / f"{name}.claim", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            continue
+        out[name] = job()
+        tmp = directory / f"{name}.{os.getpid()}.tmp"
+        with tmp.open("wb") as f:
+            pickle.dump(out[name], f)
+        os.replace(tmp, directory / f"{name}.pkl")
+    deadline = time.monotonic() + wait_s
+    for name, job in jobs.items():
+        if name in out:
+            continue
+        path = directory / f"{name}.pkl"
+        while not path.exists() and time.monotonic() < deadline:
+            time.sleep(0.5)
+        if path.exists():
+            with path.open("rb") as f:
+                out[name] = pickle.load(f)
+        else:
+            out[name] = job()
+    return out
+
+
 @pytest.fixture(scope="module")
-def helical_runs():
+def helical_runs(tmp_path_factory):
     """The reference scene (§8.6.2, the derived default geometry, rest shape straight) reduced to 7 fibres
     × 30 segments (1 cm; the seed: 355 × 100), Δt = 1 ms, 30 cm fibres, recorded every 10 ms: none to the
     seed's 0.7 s, aniso to 0.75 s (the seed's "ca. 0,7 Sekunden" ± 0.05 s), iso to 1.5 s (for the stable
-    volume; its frames at 0.65–0.75 s for Table 8.1). Returns {mode: (result, volumes (frames,) m³)}."""
-    runs = {}
-    for mode, duration in (("aniso", 0.75), ("iso", 1.5), ("none", 0.7)):
-        sc = build_drape_scene("sphere-helical", mode, n_fibres=7, segments=30, duration=duration)
-        res = run_drape(sc, record_every=10)
-        assert np.isfinite(res.polylines).all()
-        runs[mode] = (res, np.array([bounding_box(p)[1] for p in res.polylines]))
-    return runs
+    volume; its frames at 0.65–0.75 s for Table 8.1). Returns {mode: (result, volumes (frames,) m³)}. Each run
+    is made once per test session (:func:`_shared_runs`, in the directory this session's xdist workers share;
+    a run without xdist keeps them in its own temporary directory)."""
+    import os
+
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "helical_runs"
+    shared.mkdir(exist_ok=True)
+    return _shared_runs(shared, {mode: (lambda m=mode, d=duration: _helical_run(m, d))
+                                 for mode, duration in HELICAL_MODES})
 
 
 def _volume_at(run, t):
