@@ -1,0 +1,29 @@
+"""The benchmark that replays captured coupled contact solves runs (issue 10).
+
+``benchmarks/bench_contact_convergence.py`` (and ``bench_contact_domains.py``, which reads the captured calls
+through the same ``iterate_args``) rerun :func:`headsim.solvers._kernels.chains_coupled.coupled_iterate` from
+argument lists captured during a step. When the kernel gained two arguments (issue 10, twentieth session) both
+scripts kept addressing the list by position and stopped running, and nothing noticed: this test runs the
+convergence benchmark on a small drape (8 fibres × 30 segments, serial kernels) and checks that it replays the
+solve (the 20-sweep reference is 0 off itself, 5 sweeps are not)."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_contact_convergence_benchmark_replays_a_captured_solve():
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_contact_convergence.py"), "--fibres", "8",
+                          "--segments", "30", "--settle", "10", "--sweeps", "5", "20"],
+                         capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    errors = {m.group(1): float(m.group(2))
+              for m in re.finditer(r"^\s*(\d+ \w+) \(\d+ sweeps\).*?rel\. M-error ([0-9.e+-]+)", out.stdout, re.M)}
+    assert set(errors) == {"20 nesterov", "5 nesterov", "20 plain", "5 plain"}, out.stdout
+    assert errors["20 nesterov"] == 0.0
+    assert errors["5 plain"] > 0.0
