@@ -1210,6 +1210,12 @@ def _active_set_kkt(N, Mt, joints, J, A, stick, ratio):
     return _kkt_matrix(N, Mt, constraint, impulse, joints[1] + na + 2 * ns)
 
 
+def _penetrating_fibre_rows(rows) -> np.ndarray:
+    """Indices of the fibre–fibre rows with a negative gap (``ChainOptions.persistent_normals``: the rows whose
+    normal side is kept from one step to the next)."""
+    return np.flatnonzero((rows.gap < 0.0) & (rows.partner >= 0))
+
+
 def _kkt_matrix(N, Mt, constraint, impulse, n_mult):
     """Sparse KKT matrix of :func:`_exact_final_solve`, CSC with its duplicates summed: [[M̃, −Dᵀ], [C, 0]] (M̃ =
     M + SᵀCS; C the constraint rows: joints, active normal rows, sticking tangent rows; D the directions their
@@ -1223,8 +1229,7 @@ def _kkt_matrix(N, Mt, constraint, impulse, n_mult):
     size = N + n_mult
     K = scipy.sparse.coo_matrix((np.concatenate([Mt[2], cv, -iv, np.zeros(n_mult)]),
                                  (np.concatenate([Mt[0], N + cr, ic, d]), np.concatenate([Mt[1], cc, N + ir, d]))),
-                                shape=(size, size)).tocsc()
-    K.sum_duplicates()
+                                shape=(size, size)).tocsc()  # canonical: duplicates summed, explicit zeros kept
     col = np.repeat(np.arange(size), np.diff(K.indptr))
     diag = np.nonzero((K.indices == col) & (col >= N))[0]
     assert len(diag) == n_mult
@@ -1310,12 +1315,11 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
         st = stick[A]
         na, ns = len(A), int(st.sum())
         Ast, Asl = A[st], A[~st]
-        n_mult = 3 * nj + na + 2 * ns
         kkt, col, diag = _active_set_kkt(N, Mt_e, (G_e, 3 * nj), Je, A, st, ratio)
         b = np.concatenate([rhs, jt.reshape(-1), targets[A], np.zeros(2 * ns)])
         # equilibrate (velocities in m/s, impulses in N s differ by many orders), then solve; redundant rows (two
         # segments' end rows at one joint) make K singular: least squares, which must still meet every equation
-        row_max = np.zeros(N + n_mult)
+        row_max = np.zeros(kkt.shape[0])
         np.maximum.at(row_max, kkt.indices, np.abs(kkt.data))
         sc = 1.0 / np.sqrt(np.maximum(row_max, 1e-300))
         Ks = kkt.copy()
@@ -1734,7 +1738,7 @@ class ChainSolver:
         if self._normals is None or not self.options.persistent_normals:
             return
         keys, normals = self._normals
-        sel = np.flatnonzero((rows.gap < 0.0) & (rows.partner >= 0))
+        sel = _penetrating_fibre_rows(rows)
         if not len(keys) or not len(sel):
             return
         j = np.minimum(np.searchsorted(keys, rows.key[sel]), len(keys) - 1)
@@ -2525,7 +2529,7 @@ class ChainSolver:
         sweeps_max = sweeps_box[0]
         self._normals = None
         if rows is not None and o.persistent_normals and o.contact_coupling == "coupled":
-            pen = np.flatnonzero((rows.gap < 0.0) & (rows.partner >= 0))
+            pen = _penetrating_fibre_rows(rows)
             pen = pen[np.argsort(rows.key[pen])]
             self._normals = (rows.key[pen], rows.normal[pen])
         if o.warm_start and vel_impulses is not None:
