@@ -1164,12 +1164,12 @@ def test_a_contact_on_a_joint_has_exactly_one_row_when_either_copy_is_kept():
         assert list(zip(rows.body.tolist(), rows.partner.tolist())) == expected
 
 
-def test_exact_solve_kkt_matches_the_dense_block_matrix():
-    """The exact final solve's sparse KKT matrix (``chains._active_set_kkt``, assembled from the selected rows'
-    entries) is the dense block matrix the solve was first written with: [[M̃, −Gᵀ, −Eᵀ, −Tᵀ], [G, 0, 0, 0],
-    [J_n, 0, 0, 0], [T, 0, 0, 0]] with E = J_n plus a sliding row's friction ratio × its tangent rows and T the
-    sticking rows' t₁ rows then their t₂ rows; random sparse rows, active rows mixed sticking and sliding."""
-    from headsim.solvers.chains import _active_set_kkt, _coo
+def test_exact_solve_rows_match_the_dense_block_matrices():
+    """The exact final solve's sparse rows (``chains._active_set_rows``, assembled from the selected rows'
+    entries) are the dense blocks the solve was first written with: C = [G; J_n; T] and D = [G; E; T], E = J_n
+    plus a sliding row's friction ratio × its tangent rows, T the sticking rows' t₁ rows then their t₂ rows;
+    random sparse rows, active rows mixed sticking and sliding."""
+    from headsim.solvers.chains import _active_set_rows, _csr_entries
 
     rng = np.random.default_rng(7)
     N, n_rows, n_joint_rows = 24, 11, 9
@@ -1179,26 +1179,117 @@ def test_exact_solve_kkt_matches_the_dense_block_matrix():
 
     J = [sparse_rows(n_rows) for _ in range(3)]
     G = sparse_rows(n_joint_rows)
-    Mt = sparse_rows(N) + sparse_rows(N).T + 5.0 * np.eye(N)
     ratio = rng.normal(size=(n_rows, 2))
     A = np.array([0, 2, 3, 6, 7, 10])
     stick = np.array([True, False, True, False, False, True])
-    kkt, _, diag = _active_set_kkt(N, _coo(Mt)[0], (_coo(G)[0], n_joint_rows), [_coo(j) for j in J], A, stick,
-                                   ratio)
+    C, D = _active_set_rows(N, (_csr_entries(G)[0], n_joint_rows), [_csr_entries(j) for j in J], A, stick, ratio)
 
     St, Sl = A[stick], A[~stick]
     Jn = J[0][A]
     eff = Jn.copy()
     eff[~stick] += ratio[Sl, 0:1] * J[1][Sl] + ratio[Sl, 1:2] * J[2][Sl]
     T = np.concatenate([J[1][St], J[2][St]])
-    m = n_joint_rows + len(A) + len(T)
-    dense = np.zeros((N + m, N + m))
-    dense[:N, :N] = Mt
-    dense[:N, N:] = -np.concatenate([G, eff, T]).T
-    dense[N:, :N] = np.concatenate([G, Jn, T])
-    assert kkt.shape == dense.shape
-    np.testing.assert_allclose(kkt.toarray(), dense, rtol=1e-15, atol=1e-15)
-    assert len(diag) == m and (kkt.indices[diag] >= N).all() and (kkt.data[diag] == 0.0).all()
+    np.testing.assert_allclose(C.toarray(), np.concatenate([G, Jn, T]), rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(D.toarray(), np.concatenate([G, eff, T]), rtol=1e-15, atol=1e-15)
+
+
+def test_exact_solve_matrices_give_the_twists_kinematics():
+    """The exact final solve's sparse set-up against the kinematics it encodes, for random twists u = (v, ω) of
+    four bodies: ``_contact_matrix`` rows give d·(v_a + ω_a × r_a − v_b − ω_b × r_b) (b = −1: an obstacle),
+    ``_joint_matrices`` give ω_l − ω_k and (v_k + ω_k × r_k) − (v_l + ω_l × r_l) (k = −1: the anchor), and
+    ``_body_mass_matrix`` gives uᵀMu = Σ m|v|² + ωᵀIω."""
+    from headsim.solvers.chains import _body_mass_matrix, _contact_matrix, _joint_matrices
+
+    rng = np.random.default_rng(3)
+    n = 4
+    u = rng.normal(size=(n, 6))
+    v, w = u[:, :3], u[:, 3:]
+    a, b = np.array([0, 1, 3, 2]), np.array([2, -1, 0, -1])
+    ra, rb, d = (rng.normal(size=(4, 3)) for _ in range(3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    Jc = _contact_matrix(a, b, ra, rb, d, 6 * n)
+    vb = np.where((b >= 0)[:, None], v[b] + np.cross(w[b], rb), 0.0)
+    np.testing.assert_allclose(Jc @ u.reshape(-1), ((v[a] + np.cross(w[a], ra) - vb) * d).sum(1), rtol=1e-13)
+
+    l, k = np.array([1, 2, 3]), np.array([-1, 1, 2])
+    rk, rl = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+    S, G = _joint_matrices(l, k, rk, rl, 6 * n)
+    has_k = (k >= 0)[:, None]
+    np.testing.assert_allclose((S @ u.reshape(-1)).reshape(-1, 3), w[l] - np.where(has_k, w[k], 0.0), rtol=1e-13)
+    anchor_k = np.where(has_k, v[k] + np.cross(w[k], rk), 0.0)
+    np.testing.assert_allclose((G @ u.reshape(-1)).reshape(-1, 3), anchor_k - (v[l] + np.cross(w[l], rl)),
+                               rtol=1e-13)
+
+    mass = rng.uniform(1.0, 2.0, n)
+    inertia = np.array([q @ np.diag(rng.uniform(1.0, 2.0, 3)) @ q.T for q in
+                        (np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(n))])
+    M = _body_mass_matrix(mass, inertia)
+    expected = (mass * (v * v).sum(1)).sum() + np.einsum("ni,nij,nj->", w, inertia, w)
+    assert u.reshape(-1) @ (M @ u.reshape(-1)) == pytest.approx(expected, rel=1e-13)
+
+
+def test_exact_solve_shares_the_load_of_redundant_rows():
+    """``chains._min_norm_solve`` on M u − Cᵀλ = M u_free, C u = t with a row given twice (as two segments' end
+    rows at one joint are): the velocities are those of the system without the copy, the copy's multiplier and
+    its original's are equal and sum to the single row's (the least-norm split), and the residual is round-off;
+    with the copy's target changed the rows are inconsistent and the residual is half the difference."""
+    import scipy.linalg
+    import scipy.sparse
+
+    from headsim.solvers.chains import EXACT_VELOCITY_TOLERANCE, _min_norm_solve
+
+    rng = np.random.default_rng(11)
+    N = 12
+    B = rng.normal(size=(N, N))
+    M = B @ B.T + N * np.eye(N)
+    u_free = rng.normal(size=N)
+    rows = rng.normal(size=(3, N))
+    t = rng.normal(size=3)
+    mobility = scipy.linalg.lu_factor(M)
+
+    class Mobility:
+        @staticmethod
+        def solve(rhs):
+            return scipy.linalg.lu_solve(mobility, rhs)
+
+    # reference: the KKT system of the three distinct rows
+    kkt = np.block([[M, -rows.T], [rows, np.zeros((3, 3))]])
+    ref = np.linalg.solve(kkt, np.concatenate([M @ u_free, t]))
+    C = scipy.sparse.csr_matrix(np.concatenate([rows, rows[:1]]))
+    u, lam, residual = _min_norm_solve(Mobility, u_free, C, C, np.concatenate([t, t[:1]]))
+    np.testing.assert_allclose(u, ref[:N], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(lam[[0, 3]], 0.5 * ref[N], rtol=1e-10)
+    np.testing.assert_allclose(lam[1:3], ref[N + 1:], rtol=1e-10)
+    assert residual < EXACT_VELOCITY_TOLERANCE
+
+    _, _, residual = _min_norm_solve(Mobility, u_free, C, C, np.concatenate([t, t[:1] + 1e-6]))
+    assert residual == pytest.approx(0.5e-6, rel=1e-6)
+
+
+def test_exact_final_solve_holds_the_resting_stack_at_its_elastic_sag():
+    """The 4-layer stack of :func:`test_resting_stack_of_chains_keeps_its_height_and_energy_never_increases`
+    with the default solve settings: every crossing sticks, so the contact rows of a crossing near a joint are
+    redundant with the joint rows. The exact final solve must succeed in every step (before its least-norm
+    multipliers it failed in all of them as 'inconsistent' or 'active set'), and then the layers sink by no more
+    than the elastic sag of a fibre between its supports 1 mm apart, 5qL⁴/(384 EI) ≈ 1e-10 m (with the
+    Gauss–Seidel answer alone they sank 2e-9 m in 200 steps)."""
+    from headsim.solvers import chains
+
+    model, state = _capsule_stack(segments=5)
+    solver = ChainSolver(ChainOptions(qp_iterations=150))
+    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    y0 = state.position[:, 1].copy()
+    E = 3.89e9
+    q = model.mass[0] / (2.0 * model.half_length[0]) * STANDARD_GRAVITY  # N/m
+    sag = 5.0 * q * 1e-3**4 / (384.0 * E * np.pi * R_FIBRE**4 / 4.0)
+    chains.EXACT_FAILURES.clear()
+    exact = []
+    for _ in range(200):
+        state = solver.step(model, state, 1e-3, obstacles)
+        exact.append(solver.last_stats.exact_solves)
+    assert min(exact) >= 1 and not chains.EXACT_FAILURES
+    sink = (y0 - state.position[:, 1]).reshape(4, -1).mean(1)
+    assert sag < 2e-10 and sink.max() < sag
 
 
 def _crossing_axes(persistent, y_start=8e-6, mid_step_axis=-5e-6):
