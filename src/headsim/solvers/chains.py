@@ -773,7 +773,7 @@ class ChainOptions:
         set (M + SᵀCS with the joint rows, the rows with λ > 0 as equalities, sticking friction as T u = 0,
         sliding friction along its direction on the polygon), with rows leaving (λ < 0) or joining (bound
         violated) the set and friction switching between sticking (outside the polygon: slides) and sliding
-        (accelerating its contact: sticks) until every sign condition holds, at most 20 rounds. Each round
+        (accelerating its contact: sticks) until every sign condition holds, at most 8 rounds. Each round
         solves the equalities through their Schur complement C M̃⁻¹ Dᵀ (M̃ by SuperLU, the complement by a
         least-norm least-squares solve): redundant rows (two segments' end rows at one joint; a sticking
         crossing's rows next to a joint) share their load, and rows whose least-squares velocity misses its
@@ -781,11 +781,16 @@ class ChainOptions:
         When no such set is found the Gauss–Seidel answer is kept (:data:`EXACT_FAILURES` counts the reasons).
         Before the least-norm solve (a δ-regularised KKT factor with proximal refinement, tolerance 1e-10 of
         the right-hand side) the solve failed on redundant rows: in every step of the tests' 4-layer stack
-        (192 × 'inconsistent', 8 × 'active set' in 200 steps) and in 10 of the clamped bent fibre's 300 steps.
+        (``qp_iterations`` = 150: 192 × 'inconsistent', 8 × 'active set' in 200 steps) and in 10 of the clamped bent fibre's 300 steps.
         Now it succeeds in all of them (issue 10, twenty-second session): the stack sinks 2.5e-11 m in 200
-        steps against 1.9e-9 m (its elastic sag is 1.4e-10 m), 35 against 32 ms per step; the clamped fibre
+        steps against 1.9e-9 m (its elastic sag is 1.4e-10 m), 34–35 against 32–37 ms per step; the clamped fibre
         rests 1.5 instead of 2.5 nm deep, its energy rises in 28 instead of 107 of the 300 steps (largest
-        3.4e-23 J against 4.1e-23 J), and its 300 steps take 10 s instead of 28 s.
+        3.4e-23 J against 4.1e-23 J), and its 300 steps take 2.7–2.9 s instead of 2.1–2.2 s. The successful solves take 1
+        round (the stack, 200 of 200) or 1–2 (the clamped fibre: 295 / 5); with the default 30 sweeps the stack's
+        Gauss–Seidel active sets are not exact ones and the solve still fails in every step (as before; a set
+        met twice fails at once as 'active set cycles'), after 3–11 rounds or at the cap, which costs time there:
+        79 ms per step against 40 ms with the former solve, which failed in its first round (92 ms with a cap
+        of 20 rounds).
     push_out_slop : fraction of the radius (default 1e-3, 35 nm at 70 µm) a penetration at t_i must exceed
         before the split push-out acts on it, under ``end_velocity_positions`` (the rows' t_i gaps are first
         order: the clamped bent fibre reported 0.2 pm–3 nm depths every step, and pushing them out raised
@@ -1299,7 +1304,7 @@ def _contact_matrix(a, b, lever_a, lever_b, d, N):
     return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(nr, N))
 
 
-def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=600, rounds=20):
+def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=600, rounds=8):
     """The velocity solve's problem solved exactly (Schur complement, :func:`_min_norm_solve`) on the active set the
     Gauss–Seidel found (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target (targets (rows,) m/s), a sticking
     contact (friction strictly inside the polygon λ·conv{μ_β d_β} at the Gauss–Seidel answer) T u = 0, a sliding
@@ -1351,7 +1356,12 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
     except RuntimeError:  # SuperLU: "Factor is exactly singular"
         return _fail("singular")
     u_free = mobility.solve(rhs)
+    seen = set()  # the (active, sticking) sets tried: a set met again is a cycle, which no further round leaves
     for _ in range(rounds):
+        key = (active.tobytes(), stick.tobytes())
+        if key in seen:
+            return _fail("active set cycles")
+        seen.add(key)
         A = np.nonzero(active)[0]
         st = stick[A]
         na, ns = len(A), int(st.sum())
