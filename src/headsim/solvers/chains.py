@@ -792,7 +792,13 @@ class ChainOptions:
         m/s) the default stack failed in every step (its first round missed by 2.2e-12 m/s of a 1e-2 m/s
         change: the truncation's round-off), and a failing solve costs up to ``rounds`` least-squares solves
         (79 against 40 ms per step there); an (active, sticking) set met twice fails at once as 'active set
-        cycles'.
+        cycles'. On a model of at most :data:`EXACT_MAX_DOF` / 6 = 100 bodies the last pass's velocity solve
+        stops at ``qp_iterations`` and the exact solve is tried on its active set; only when that fails does
+        the Gauss–Seidel go on, from its impulses, under ``sweep_budget``, and the exact solve is tried again.
+        Measured: the default stack 32 → 21 ms per step with bitwise the same states (the exact solve finds the
+        same set), the 1,000-step stack test (150 sweeps) 50 → 24 s; the clamped fibre: the same resting depth,
+        1 of 300 first tries fails ('active set') and the retry succeeds, its energy rises in 43 instead of 28
+        steps (largest 3.35e-23 J, before 3.36e-23 J).
     push_out_slop : fraction of the radius (default 1e-3, 35 nm at 70 µm) a penetration at t_i must exceed
         before the split push-out acts on it, under ``end_velocity_positions`` (the rows' t_i gaps are first
         order: the clamped bent fibre reported 0.2 pm–3 nm depths every step, and pushing them out raised
@@ -1162,6 +1168,7 @@ def _tangent_frames(axis: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.nda
 # the default 30 sweeps, 2.2e-12 m/s of 1e-2 m/s; truly inconsistent rows there miss by 1e-9-3e-9 m/s)
 EXACT_VELOCITY_TOLERANCE = 1e-12
 EXACT_RELATIVE_TOLERANCE = 1e-9
+EXACT_MAX_DOF = 600  # degrees of freedom (6 per body) of the largest system the exact final solve takes
 EXACT_FAILURES: dict = {}  # reason -> count of _exact_final_solve results that were not used (diagnostics)
 
 
@@ -1312,7 +1319,8 @@ def _contact_matrix(a, b, lever_a, lever_b, d, N):
     return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(nr, N))
 
 
-def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=600, rounds=8):
+def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=EXACT_MAX_DOF,
+                       rounds=8):
     """The velocity solve's problem solved exactly (Schur complement, :func:`_min_norm_solve`) on the active set the
     Gauss–Seidel found (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target (targets (rows,) m/s), a sticking
     contact (friction strictly inside the polygon λ·conv{μ_β d_β} at the Gauss–Seidel answer) T u = 0, a sliding
@@ -2460,9 +2468,12 @@ class ChainSolver:
                 else:  # contact points move with the bodies: first-order gap change of the new mid state
                     dq = np.ascontiguousarray(np.concatenate([x_mid - x_mid0, 0.5 * dt * (w_hs - w_hs0)], axis=1))
                 gaps, gaps_pos, gaps_stat = self._pass_gaps(rows, gaps0, dq, endvel, model, row_vn)
+                # a model small enough for the exact final solve tries it after the capped Gauss–Seidel first and
+                # runs the sweep budget only when it fails (ChainOptions.exact_final_solve)
+                exact_first = endvel and o.exact_final_solve and 6 * model.n_segments <= EXACT_MAX_DOF
                 u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                        sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring,
-                                       spring_step=spring_step, joints_last=endvel, budget=endvel)
+                                       spring_step=spring_step, joints_last=endvel, budget=endvel and not exact_first)
                 pass_promoted = self._promoted
                 if endvel:
                     # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met
@@ -2478,6 +2489,16 @@ class ChainSolver:
                             exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
                                                        np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
                                                        self._pass_setup[2], self._mu)
+                        if exact is None and exact_first:
+                            u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid,
+                                                   Iwi, dt, lam, sweeps_box, x_mid, self._impulses, pass_key=it,
+                                                   u_spring=u_spring, spring_step=spring_step, joints_last=endvel,
+                                                   budget=True)
+                            pass_promoted += self._promoted
+                            with _blas_controller().limit(limits=1, user_api="blas"):
+                                exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
+                                                           np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
+                                                           self._pass_setup[2], self._mu)
                         if exact is not None:
                             u_vel, lam[:] = exact[0], exact[1]
                             self._impulses = (exact[1].copy(), exact[2])
