@@ -2236,6 +2236,17 @@ class ChainSolver:
         d = u - u_start
         return mdot(u, u - u_minus) + float((wrel * spring).sum()) - 0.5 * mdot(d, d)
 
+    def _exact_solve(self, model, rows, gaps, dt, u_minus, R_mid):
+        """:func:`_exact_final_solve` of the last velocity solve (its impulses, the pass's joint rows)."""
+        from headsim.solvers.contact_qp import _blas_controller
+
+        # one BLAS thread for the Schur complement's products and least squares (a 300 × 300 LU took 0.1 s instead
+        # of 1 ms with the BLAS threads competing with the Numba ones on 2 loaded cores)
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            return _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
+                                      np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid, self._pass_setup[2],
+                                      self._mu)
+
     def _warm_start_impulses(self, rows):
         """(λ, friction) per row: :data:`WARM_START_FRACTION` of the previous step's solution of the same
         contacts (same key; 0 for new contacts and non-primary rows), or None without a previous solution
@@ -2480,25 +2491,14 @@ class ChainSolver:
                     # its stopping rule with a positive bound is solved on, from its own impulses, to a 10× tighter
                     # rule
                     if o.exact_final_solve and self._impulses is not None:
-                        from headsim.solvers.contact_qp import _blas_controller
-
-                        # one BLAS thread for the dense Schur complement's products and least squares (a 300 × 300 LU
-                        # took 0.1 s instead of 1 ms with the BLAS threads competing with the Numba ones on 2 loaded
-                        # cores)
-                        with _blas_controller().limit(limits=1, user_api="blas"):
-                            exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
-                                                       np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
-                                                       self._pass_setup[2], self._mu)
+                        exact = self._exact_solve(model, rows, gaps, dt, u_minus, R_mid)
                         if exact is None and exact_first:
                             u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid,
                                                    Iwi, dt, lam, sweeps_box, x_mid, self._impulses, pass_key=it,
                                                    u_spring=u_spring, spring_step=spring_step, joints_last=endvel,
                                                    budget=True)
                             pass_promoted += self._promoted
-                            with _blas_controller().limit(limits=1, user_api="blas"):
-                                exact = _exact_final_solve(model, rows, self._impulses[0], self._impulses[1],
-                                                           np.where(gaps > 0, -gaps / dt, 0.0), u_minus, R_mid,
-                                                           self._pass_setup[2], self._mu)
+                            exact = self._exact_solve(model, rows, gaps, dt, u_minus, R_mid)
                         if exact is not None:
                             u_vel, lam[:] = exact[0], exact[1]
                             self._impulses = (exact[1].copy(), exact[2])
