@@ -1,4 +1,5 @@
-"""The benchmark that replays captured coupled contact solves runs (issue 10).
+"""The chain-solver benchmarks run (issue 10): the replay of captured coupled contact solves and the exact final
+solve's comparison.
 
 ``benchmarks/bench_contact_convergence.py`` (and ``bench_contact_domains.py``, which reads the captured calls
 through the same ``iterate_args``) rerun :func:`headsim.solvers._kernels.chains_coupled.coupled_iterate` from
@@ -27,3 +28,16 @@ def test_contact_convergence_benchmark_replays_a_captured_solve():
     assert set(errors) == {"20 nesterov", "5 nesterov", "20 plain", "5 plain"}, out.stdout
     assert errors["20 nesterov"] == 0.0
     assert errors["5 plain"] > 0.0
+
+
+def test_exact_solve_benchmark_compares_both_modes():
+    """``benchmarks/bench_exact_solve.py`` runs both modes on its scenes (the clamped fibre through
+    ``bench_energy_ledger.py``'s scene) and reports a ratio per scene; on the stack the exact mode uses the exact
+    solve in every step and the Gauss–Seidel mode in none."""
+    steps = 20
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_exact_solve.py"), "--steps", str(steps),
+                          "--stack-sweeps", "30"], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert len(re.findall(r"time exact / GS only: [0-9.]+$", out.stdout, re.M)) == 2, out.stdout
+    used = re.findall(r"^stack, qp_iterations 30 +(GS only|exact) .*exact solves used (\d+)", out.stdout, re.M)
+    assert dict(used) == {"GS only": "0", "exact": str(steps)}, out.stdout
