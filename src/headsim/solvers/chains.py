@@ -784,10 +784,10 @@ class ChainOptions:
         the right-hand side) the solve failed on redundant rows: in every step of the tests' 4-layer stack
         (``qp_iterations`` = 150: 192 × 'inconsistent', 8 × 'active set' in 200 steps; the defaults: 297 × and
         3 × in 300) and in 10 of the clamped bent fibre's 300 steps. Now it succeeds in all of them (issue 10,
-        twenty-second session), in 1 round, rarely 2 (the default stack 199 / 1 of 200, the clamped fibre 295 / 5): the stack sinks 2.5e-11 m (150
-        sweeps) / 2.8e-11 m (defaults) in 200 / 300 steps against 1.9e-9 / 2.1e-9 m (its elastic sag is
-        1.4e-10 m), 34–35 against 32–37 ms per step (150 sweeps), 35–40 against 33–34 (defaults); the clamped fibre rests 1.5 instead of 2.5 nm
-        deep, its energy rises in 28 instead of 107 of the 300 steps (largest 3.4e-23 J against 4.1e-23 J),
+        twenty-second session), in 1 round, rarely 2 (the default stack 199 / 1 of 200, the clamped fibre 295 /
+        5): the stack sinks 2.5e-11 m (150 sweeps) / 2.8e-11 m (defaults) in 200 / 300 steps against 1.9e-9 /
+        2.1e-9 m (its elastic sag is 1.4e-10 m), 34–35 against 32–37 ms per step (150 sweeps), 35–40 against
+        33–34 (defaults); the clamped fibre rests 1.5 instead of 2.5 nm deep, its energy rises in 28 instead of 107 of the 300 steps (largest 3.4e-23 J against 4.1e-23 J),
         and its 300 steps take 2.7–2.9 s instead of 2.1–2.2 s. With an absolute residual tolerance alone (1e-12
         m/s) the default stack failed in every step (its first round missed by 2.2e-12 m/s of a 1e-2 m/s
         change: the truncation's round-off), and a failing solve costs up to ``rounds`` least-squares solves
@@ -1199,8 +1199,8 @@ def _csr_entries(m):
 
 
 def _row_entries(coo, rows, scale=None):
-    """Entries of the given rows of a matrix from :func:`_csr_entries`, as (local row i of ``rows[i]``, column, value),
-    the values multiplied by ``scale[i]`` when given."""
+    """Entries of the given rows of a matrix from :func:`_csr_entries`, as (local row i of ``rows[i]``, column,
+    value), the values multiplied by ``scale[i]`` when given."""
     (r, c, v), ptr = coo
     counts = ptr[rows + 1] - ptr[rows]
     idx = np.repeat(ptr[rows] - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
@@ -1322,13 +1322,13 @@ def _contact_matrix(a, b, lever_a, lever_b, d, N):
 def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=EXACT_MAX_DOF,
                        rounds=8):
     """The velocity solve's problem solved exactly (Schur complement, :func:`_min_norm_solve`) on the active set the
-    Gauss–Seidel found (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target (targets (rows,) m/s), a sticking
-    contact (friction strictly inside the polygon λ·conv{μ_β d_β} at the Gauss–Seidel answer) T u = 0, a sliding
-    one keeps the direction and ratio to λ of its friction impulse; the joints J u = target and their spring
-    rows (``joints``: :meth:`ChainSolver._joint_rows`) exactly, M at R_mid. Rows whose λ comes out negative
-    leave the set, rows whose bound is violated by more than 1e-12 m/s join it, sticking friction outside the
-    polygon slides (on the polygon along its direction), sliding friction that would accelerate its contact
-    sticks, until nothing changes (at most ``rounds`` times). Returns (u (S, 6), λ (rows,), friction (rows, 2))
+    Gauss–Seidel found (``ChainOptions.exact_final_solve``): rows with λ > 0 hold J u = target (targets (rows,)
+    m/s), a sticking contact (friction strictly inside the polygon λ·conv{μ_β d_β} at the Gauss–Seidel answer)
+    T u = 0, a sliding one keeps the direction and ratio to λ of its friction impulse; the joints J u = target
+    and their spring rows (``joints``: :meth:`ChainSolver._joint_rows`) exactly, M at R_mid. Rows whose λ comes
+    out negative leave the set, rows whose bound is violated by more than 1e-12 m/s join it, sticking friction
+    outside the polygon slides (on the polygon along its direction), sliding friction that would accelerate its
+    contact sticks, until nothing changes (at most ``rounds`` times; a set met twice ends it). Returns (u (S, 6), λ (rows,), friction (rows, 2))
     or None (the reason counted in :data:`EXACT_FAILURES`) when the system has more than ``max_dof`` degrees of
     freedom or no such set was found."""
     jk, jl, jrk, jrl, jt, jc, jw0, _ = joints
