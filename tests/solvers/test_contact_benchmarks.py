@@ -1,5 +1,5 @@
-"""The chain-solver benchmarks run (issue 10): the replay of captured coupled contact solves and the exact final
-solve's comparison.
+"""The chain-solver benchmarks run (issue 10): the replay of captured coupled contact solves, the exact final
+solve's comparison and the root-region experiment.
 
 ``benchmarks/bench_contact_convergence.py`` (and ``bench_contact_domains.py``, which reads the captured calls
 through the same ``iterate_args``) rerun :func:`headsim.solvers._kernels.chains_coupled.coupled_iterate` from
@@ -41,3 +41,14 @@ def test_exact_solve_benchmark_compares_both_modes():
     assert len(re.findall(r"time exact / GS only: [0-9.]+$", out.stdout, re.M)) == 2, out.stdout
     used = re.findall(r"^stack, qp_iterations 30 +(GS only|exact) .*exact solves used (\d+)", out.stdout, re.M)
     assert dict(used) == {"GS only": "0", "exact": str(steps)}, out.stdout
+
+
+def test_root_solve_experiment_runs():
+    """``benchmarks/bench_root_solve.py`` (the root-region exact solve between sweeps) replays a captured solve of a
+    small ringlet and reports the plain continuation and the root-region solve for every depth asked."""
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_root_solve.py"), "--fibres", "8",
+                          "--segments", "20", "--settle", "10", "--reference", "300", "--more", "5",
+                          "--depth", "8"], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert re.search(r"^GS 30 \+ warm 5 +CPU", out.stdout, re.M), out.stdout
+    assert re.search(r"root region of depth 8: \d+ bodies", out.stdout), out.stdout

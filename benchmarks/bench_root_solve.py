@@ -1,0 +1,179 @@
+"""Experiment (issue 10): does an exact solve of the anchored root region, between Gauss–Seidel sweeps, remove the
+coupled contact solve's slow mode?
+
+The drape scene (``sphere-helical``, Sobottka 2008 §8.6.2) is advanced ``--settle`` steps and the next step's
+first coupled contact solve is captured (as in ``bench_contact_convergence.py``). Its iteration
+(:func:`headsim.solvers._kernels.chains_coupled.coupled_iterate`) is then replayed:
+
+* ``GS n``: n Gauss–Seidel sweeps (the shipped Nesterov iteration) from the captured start;
+* ``GS k + exact(depth d) + m``: k sweeps, then the root region solved exactly with everything else held at
+  its velocities after the k sweeps, then m sweeps warm-started from the resulting impulses. The root region:
+  the first d segments of every fibre that has a fibre–fibre row between two such segments carrying an
+  impulse after the k sweeps; its problem holds every row (from the start, not the candidates) and every joint
+  that touches it; the other bodies of those rows and joints are held (their mass and inertia × 1e9, their
+  velocity the iterate's). It is solved by :func:`headsim.solvers.chains._exact_final_solve` (active set from
+  the k sweeps' impulses, least-norm Schur complement, up to ``--rounds`` rounds);
+* ``GS k + warm m``: the same continuation without the exact solve.
+
+Printed: CPU time, the relative error of the velocity correction in the kinetic metric against a
+``--reference``-sweep answer, the largest bound violation and joint gap-rate residual (m/s) and the summed
+normal impulse (N s).
+
+Usage: python benchmarks/bench_root_solve.py [--fibres 30] [--segments 30] [--settle 20] [--geometry former]
+       [--friction none] [--sweeps 30] [--more 10 30 90] [--depth 3 8] [--reference 20000] [--rounds 60]
+
+Measured (twenty-second session, serial kernel):
+
+* former ringlet 30 × 30, t = 20 ms, frictionless (``--friction none``; 900 segments, 2,871 rows, 900
+  joints): the 20,000-sweep answer's normal impulses sum to 3.0e-5 N s, 30 sweeps reach 3.1e-7 (the root
+  segments pinched between their neighbours, see ``bench_contact_convergence.py``); relative error 0.920
+  after 30 sweeps, 0.918 / 0.905 after 30 + 30 / 30 + 90, 0.895 after 120. Root region of depth 8 (240
+  bodies, 273 rows, 270 joints), solved exactly in 1.6 s (Python set-up, dense least squares): the impulse
+  sum is 3.03e-5 N s at once, the error 0.087 / 0.080 / 0.080 after 10 / 30 / 90 more sweeps, the largest
+  violation 3.7e-5 m/s after 90 (30 + 90 plain sweeps: 2.0e-3). Depth 3 (90 bodies, 66 rows): 'inconsistent'.
+* the same with the anisotropic friction (``--friction aniso``): the exact solve fails at depth 3 (90 bodies, 90
+  rows) and 8 (240 bodies, 344 rows), 'inconsistent' within 60 rounds ('active set' within the shipped 8): from
+  30 sweeps' impulses the sticking / sliding guess of the active-set method is too far off. A local solver that
+  needs no such guess (e.g. projected Gauss–Seidel on the root region's exact Delassus matrix, whose chains are
+  clamped at both ends) is the next step.
+
+So the slow mode of the pinched ringlet is the root region: one exact solve of it takes the iteration from 0.92
+to 0.08 of its error, where 90 more sweeps take it to 0.90. Not yet a solver: the local solve costs 1.6 s here
+(100 × the sweeps), fails with friction, and was not measured on the reference scene's resting strand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import types
+
+import numpy as np
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--fibres", type=int, default=30)
+    ap.add_argument("--segments", type=int, default=30)
+    ap.add_argument("--settle", type=int, default=20)
+    ap.add_argument("--geometry", choices=("derived", "former"), default="former")
+    ap.add_argument("--friction", default="none")
+    ap.add_argument("--sweeps", type=int, default=30)
+    ap.add_argument("--more", type=int, nargs="+", default=[10, 30, 90])
+    ap.add_argument("--depth", type=int, nargs="+", default=[3, 8])
+    ap.add_argument("--reference", type=int, default=20000)
+    ap.add_argument("--rounds", type=int, default=60)
+    args = ap.parse_args()
+    from bench_contact_convergence import _residuals, iterate_args
+
+    from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
+    from headsim.solvers import chains as C
+    from headsim.solvers._kernels import chains_coupled as KC
+
+    geometry = HelicalSphereGeometry.former() if args.geometry == "former" else None
+    scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
+                              geometry=geometry)
+    solver = C.ChainSolver(scene.options)
+    state = scene.state
+    for _ in range(args.settle):
+        state = solver.step(scene.model, state, scene.dt, scene.obstacles)
+    captured = []
+    originals = (KC.coupled_iterate, KC.coupled_iterate_parallel)
+
+    def capture(orig):
+        def wrapped(*a):
+            if not captured:
+                captured.append([x.copy() if isinstance(x, np.ndarray) else x for x in a])
+            return orig(*a)
+        return wrapped
+
+    KC.coupled_iterate, KC.coupled_iterate_parallel = (capture(f) for f in originals)
+    try:
+        solver.step(scene.model, state, scene.dt, scene.obstacles)
+    finally:
+        KC.coupled_iterate, KC.coupled_iterate_parallel = originals
+    ix = iterate_args()
+    a0 = captured[0]
+    n_listed = a0[ix["n_listed_rows"]]
+    u_minus, mass, R = a0[ix["u"]].copy(), a0[ix["mass"]], a0[ix["R"]]
+    model = scene.model
+    S = model.n_segments
+    Iw = np.einsum("sac,sc,sbc->sab", R, a0[ix["inertia"]], R)
+
+    def m2(du):
+        return float((mass * (du[:, :3] ** 2).sum(1)).sum() + np.einsum("sa,sab,sb->", du[:, 3:], Iw, du[:, 3:]))
+
+    def run(n, lam=None, fr=None):
+        a = [x.copy() if isinstance(x, np.ndarray) else x for x in a0]
+        a[ix["max_iter"]], a[ix["tol"]] = int(n), 0.0
+        if lam is not None:
+            a[ix["lam_out"]][:], a[ix["fr_out"]][:] = lam, fr
+        c = time.process_time()
+        KC.coupled_iterate(*a)
+        return a, time.process_time() - c
+
+    ref, _ = run(args.reference)
+    u_ref = ref[ix["u"]]
+
+    def report(name, a, cpu):
+        u = a[ix["u"]]
+        viol, jr = _residuals(a, u)
+        print(f"{name:34s} CPU {cpu:6.3f} s, rel. M-error {np.sqrt(m2(u - u_ref) / m2(u_ref - u_minus)):.3e}, "
+              f"max violation {viol:.2e} m/s, max joint residual {jr:.2e} m/s, "
+              f"normal impulses sum {a[ix['lam_out']].sum():.3e} N s", flush=True)
+
+    body, partner = a0[ix["body"]], a0[ix["partner"]]
+    n_rows = len(body)
+    first = np.searchsorted(model.segment_fibre, model.segment_fibre, side="left")
+    segment_index = np.arange(S) - first
+    print(f"t = {state.time:.3f} s, {S} segments, {n_listed} rows from the start, {n_rows - n_listed} candidates, "
+          f"{len(a0[ix['joint_k']])} joints, friction {args.friction}")
+    report(f"reference {args.reference}", ref, 0.0)
+    k = args.sweeps
+    for m in args.more:
+        report(f"GS {k + m}", *run(k + m))
+    a_k, cpu_k = run(k)
+    report(f"GS {k}", a_k, cpu_k)
+    lam_k, fr_k, u_k = a_k[ix["lam_out"]].copy(), a_k[ix["fr_out"]].copy(), a_k[ix["u"]].copy()
+    for m in args.more:
+        a, c = run(m, lam_k, fr_k)
+        report(f"GS {k} + warm {m}", a, cpu_k + c)
+
+    fibre_rows = partner >= 0
+    pb = np.maximum(partner, 0)
+    for depth in args.depth:
+        pinch = fibre_rows & (segment_index[body] < depth) & (segment_index[pb] < depth) & (lam_k > 0)
+        fibres = np.unique(np.concatenate([model.segment_fibre[body[pinch]], model.segment_fibre[pb[pinch]]]))
+        inside = np.isin(model.segment_fibre, fibres) & (segment_index < depth)
+        rsel = np.flatnonzero((inside[body] | (fibre_rows & inside[pb])) & (np.arange(n_rows) < n_listed))
+        jk, jl = a0[ix["joint_k"]], a0[ix["joint_l"]]
+        jsel = np.flatnonzero(inside[jl] | ((jk >= 0) & inside[np.maximum(jk, 0)]))
+        held = ~inside
+        held_mass, held_inertia = mass.copy(), a0[ix["inertia"]].copy()
+        held_mass[held] *= 1e9
+        held_inertia[held] *= 1e9
+        um = u_minus.copy()
+        um[held] = u_k[held]
+        local_model = types.SimpleNamespace(mass=held_mass, inertia=held_inertia, n_segments=S)
+        rows = types.SimpleNamespace(body=body[rsel], partner=partner[rsel], normal=a0[ix["normal"]][rsel],
+                                     lever=a0[ix["lever"]][rsel], partner_lever=a0[ix["partner_lever"]][rsel])
+        joints = tuple(a0[ix[name]][jsel] for name in ("joint_k", "joint_l", "joint_rk", "joint_rl", "joint_target",
+                                                       "joint_compliance_inv", "joint_w0")) + (None,)
+        C.EXACT_FAILURES.clear()
+        c = time.process_time()
+        out = C._exact_final_solve(local_model, rows, lam_k[rsel], fr_k[rsel], a0[ix["target"]][rsel], um, R, joints,
+                                   (a0[ix["mu_cos"]], a0[ix["mu_sin"]]), max_dof=10**9, rounds=args.rounds)
+        c_exact = time.process_time() - c
+        print(f"   root region of depth {depth}: {int(inside.sum())} bodies, {len(rsel)} rows, {len(jsel)} joints; "
+              f"exact solve {'ok' if out is not None else dict(C.EXACT_FAILURES)} in {c_exact:.3f} s CPU")
+        if out is None:
+            continue
+        lam, fr = lam_k.copy(), fr_k.copy()
+        lam[rsel], fr[rsel] = out[1], out[2]
+        for m in args.more:
+            a, c = run(m, lam, fr)
+            report(f"GS {k} + exact(depth {depth}) + {m}", a, cpu_k + c_exact + c)
+
+
+if __name__ == "__main__":
+    main()
