@@ -6,14 +6,16 @@ first coupled contact solve is captured (as in ``bench_contact_convergence.py``)
 (:func:`headsim.solvers._kernels.chains_coupled.coupled_iterate`) is then replayed:
 
 * ``GS n``: n Gauss–Seidel sweeps (the shipped Nesterov iteration) from the captured start;
-* ``GS k + exact(depth d) + m``: k sweeps, then the root region solved exactly with everything else held at
-  its velocities after the k sweeps, then m sweeps warm-started from the resulting impulses. The root region:
+* ``GS k + <local>(depth d) + m``: k sweeps, then the root region solved on its own with everything else held
+  at its velocities after the k sweeps, then m sweeps warm-started from the resulting impulses. The root region:
   the first d segments of every fibre that has a fibre–fibre row between two such segments carrying an
   impulse after the k sweeps; its problem holds every row (from the start, not the candidates) and every joint
   that touches it; the other bodies of those rows and joints are held (their mass and inertia × 1e9, their
-  velocity the iterate's). It is solved by :func:`headsim.solvers.chains._exact_final_solve` (active set from
-  the k sweeps' impulses, least-norm Schur complement, up to ``--rounds`` rounds);
-* ``GS k + warm m``: the same continuation without the exact solve.
+  velocity the iterate's). Local solvers (``--local``): ``exact``, :func:`headsim.solvers.chains._exact_final_solve`
+  (active set from the k sweeps' impulses, least-norm Schur complement, up to ``--rounds`` rounds); ``pgs``,
+  :func:`local_delassus_pgs`, ``--local-sweeps`` sweeps of projected block Gauss–Seidel on the region's exact
+  Delassus matrix (its chains, clamped at the roots and held at their far ends, eliminated exactly);
+* ``GS k + warm m``: the same continuation without the local solve.
 
 Printed: CPU time, the relative error of the velocity correction in the kinetic metric against a
 ``--reference``-sweep answer, the largest bound violation and joint gap-rate residual (m/s) and the summed
@@ -21,25 +23,27 @@ normal impulse (N s).
 
 Usage: python benchmarks/bench_root_solve.py [--fibres 30] [--segments 30] [--settle 20] [--geometry former]
        [--friction none] [--sweeps 30] [--more 10 30 90] [--depth 3 8] [--reference 20000] [--rounds 60]
+       [--local exact pgs] [--local-sweeps 200]
 
-Measured (twenty-second session, serial kernel):
+Measured (twenty-second session, serial kernel; Python prototypes of the local solvers):
 
 * former ringlet 30 × 30, t = 20 ms, frictionless (``--friction none``; 900 segments, 2,871 rows, 900
   joints): the 20,000-sweep answer's normal impulses sum to 3.0e-5 N s, 30 sweeps reach 3.1e-7 (the root
   segments pinched between their neighbours, see ``bench_contact_convergence.py``); relative error 0.920
   after 30 sweeps, 0.918 / 0.905 after 30 + 30 / 30 + 90, 0.895 after 120. Root region of depth 8 (240
-  bodies, 273 rows, 270 joints), solved exactly in 1.6 s (Python set-up, dense least squares): the impulse
-  sum is 3.03e-5 N s at once, the error 0.087 / 0.080 / 0.080 after 10 / 30 / 90 more sweeps, the largest
-  violation 3.7e-5 m/s after 90 (30 + 90 plain sweeps: 2.0e-3). Depth 3 (90 bodies, 66 rows): 'inconsistent'.
-* the same with the anisotropic friction (``--friction aniso``): the exact solve fails at depth 3 (90 bodies, 90
-  rows) and 8 (240 bodies, 344 rows), 'inconsistent' within 60 rounds ('active set' within the shipped 8): from
-  30 sweeps' impulses the sticking / sliding guess of the active-set method is too far off. A local solver that
-  needs no such guess (e.g. projected Gauss–Seidel on the root region's exact Delassus matrix, whose chains are
-  clamped at both ends) is the next step.
+  bodies, 273 rows, 270 joints): ``exact`` (1.4–1.6 s) gives the converged impulse sum at once and an error of
+  0.080 after 30 / 90 more sweeps (largest violation 3.7e-5 m/s after 90; plain: 2.0e-3); ``pgs`` (200 local
+  sweeps, 0.6 s) 0.062. Depth 3 (90 bodies, 66 rows): ``exact`` fails ('inconsistent'), ``pgs`` 0.235 / 0.233.
+* the same with the anisotropic friction (``--friction aniso``): ``exact`` fails at depth 3 and 8
+  ('inconsistent' within 60 rounds, 'active set' within the shipped 8: from 30 sweeps' impulses the sticking /
+  sliding guess is too far off); ``pgs`` at depth 3 (90 rows, 0.3 s): 0.227 / 0.220 after 30 / 90 more sweeps
+  (plain 0.921 / 0.903); at depth 8 (344 rows, 1.1 s): 3.8 after 30 more sweeps (a transient) and 0.041
+  after 90.
 
-So the slow mode of the pinched ringlet is the root region: one exact solve of it takes the iteration from 0.92
-to 0.08 of its error, where 90 more sweeps take it to 0.90. Not yet a solver: the local solve costs 1.6 s here
-(100 × the sweeps), fails with friction, and was not measured on the reference scene's resting strand.
+So the slow mode of the pinched ringlet is the root region: one solve of it on its exact Delassus matrix takes
+the iteration from 0.92 to 0.04–0.06 of its error, where 90 more plain sweeps take it to 0.90. Not yet a
+solver: the prototypes cost 0.3–1.6 s here (the sweeps 10 ms), the depth-8 transient needs damping or
+repeated local solves, and the resting strand of the reference scene was measured only as below.
 """
 
 from __future__ import annotations
@@ -49,6 +53,53 @@ import time
 import types
 
 import numpy as np
+
+
+def local_delassus_pgs(model, rows, joints, u_minus, R, targets, lam, fr, polygon, sweeps):
+    """Projected block Gauss–Seidel on the local problem's exact Delassus matrix W = J_c K⁻¹ J_cᵀ (K: the bodies'
+    M̃ with the joints as equality rows, :func:`headsim.solvers.chains._exact_system`; J_c the contacts' normal, t₁,
+    t₂ rows): per contact the normal impulse max(0, λ + (target − v_n)/W_nn), then the friction impulse by the
+    kernel's exact polygon QP (λ·conv{μ_β d_β}); every update applied to all contact velocities at once. Returns
+    (λ, friction) of the rows after ``sweeps`` sweeps, started from the given impulses."""
+    import scipy.sparse
+    import scipy.sparse.linalg
+
+    from headsim.solvers import chains as C
+    from headsim.solvers._kernels import chains as K
+
+    jk, jl = joints[0], joints[1]
+    used = np.unique(np.concatenate([rows.body, rows.partner[rows.partner >= 0], jk[jk >= 0], jl]))
+    Mt, rhs, G, J = C._exact_system(model, rows, u_minus, R, joints, used)
+    N, m = Mt.shape[0], len(rows.body)
+    kkt = scipy.sparse.bmat([[Mt, -G.T], [G, None]]).tocsc()
+    lu = scipy.sparse.linalg.splu(kkt)
+    u_free = lu.solve(np.concatenate([rhs, joints[4].reshape(-1)]))[:N]
+    Jc = scipy.sparse.vstack(J).tocsr()[np.arange(3 * m).reshape(3, m).T.reshape(-1)]  # rows n, t₁, t₂ per contact
+    Y = lu.solve(np.vstack([Jc.T.toarray(), np.zeros((G.shape[0], 3 * m))]))[:N]
+    W = np.asarray(Jc @ Y)
+    x = np.column_stack([lam, fr]).reshape(-1).copy()
+    v = Jc @ u_free + W @ x
+    px, py = (np.ascontiguousarray(p) for p in polygon)
+    for _ in range(sweeps):
+        for i in range(m):
+            a = 3 * i
+            dn = max(0.0, x[a] + (targets[i] - v[a]) / W[a, a]) - x[a]
+            if dn != 0.0:
+                x[a] += dn
+                v += W[:, a] * dn
+            f_old = x[a + 1:a + 3].copy()
+            if x[a] > 0.0 and len(px):
+                B = np.ascontiguousarray(W[a + 1:a + 3, a + 1:a + 3])
+                fx, fy = K._polygon_qp(B, v[a + 1:a + 3] - B @ f_old, px * x[a], py * x[a], len(px))
+                f = np.array([fx, fy])
+            else:
+                f = np.zeros(2)
+            df = f - f_old
+            if df.any():
+                x[a + 1:a + 3] = f
+                v += W[:, a + 1:a + 3] @ df
+    x = x.reshape(m, 3)
+    return x[:, 0].copy(), x[:, 1:].copy()
 
 
 def main():
@@ -63,6 +114,9 @@ def main():
     ap.add_argument("--depth", type=int, nargs="+", default=[3, 8])
     ap.add_argument("--reference", type=int, default=20000)
     ap.add_argument("--rounds", type=int, default=60)
+    ap.add_argument("--local", nargs="+", choices=("exact", "pgs"), default=["exact", "pgs"],
+                    help="local solvers: the active-set exact solve, projected Gauss-Seidel on the exact Delassus")
+    ap.add_argument("--local-sweeps", type=int, default=200)
     args = ap.parse_args()
     from bench_contact_convergence import _residuals, iterate_args
 
@@ -159,20 +213,29 @@ def main():
                                      lever=a0[ix["lever"]][rsel], partner_lever=a0[ix["partner_lever"]][rsel])
         joints = tuple(a0[ix[name]][jsel] for name in ("joint_k", "joint_l", "joint_rk", "joint_rl", "joint_target",
                                                        "joint_compliance_inv", "joint_w0")) + (None,)
-        C.EXACT_FAILURES.clear()
-        c = time.process_time()
-        out = C._exact_final_solve(local_model, rows, lam_k[rsel], fr_k[rsel], a0[ix["target"]][rsel], um, R, joints,
-                                   (a0[ix["mu_cos"]], a0[ix["mu_sin"]]), max_dof=10**9, rounds=args.rounds)
-        c_exact = time.process_time() - c
-        print(f"   root region of depth {depth}: {int(inside.sum())} bodies, {len(rsel)} rows, {len(jsel)} joints; "
-              f"exact solve {'ok' if out is not None else dict(C.EXACT_FAILURES)} in {c_exact:.3f} s CPU")
-        if out is None:
-            continue
-        lam, fr = lam_k.copy(), fr_k.copy()
-        lam[rsel], fr[rsel] = out[1], out[2]
-        for m in args.more:
-            a, c = run(m, lam, fr)
-            report(f"GS {k} + exact(depth {depth}) + {m}", a, cpu_k + c_exact + c)
+        for local in args.local:
+            c = time.process_time()
+            if local == "exact":
+                C.EXACT_FAILURES.clear()
+                out = C._exact_final_solve(local_model, rows, lam_k[rsel], fr_k[rsel], a0[ix["target"]][rsel], um, R,
+                                           joints, (a0[ix["mu_cos"]], a0[ix["mu_sin"]]), max_dof=10**9,
+                                           rounds=args.rounds)
+                out = None if out is None else out[1:]
+                outcome = "ok" if out is not None else dict(C.EXACT_FAILURES)
+            else:
+                out = local_delassus_pgs(local_model, rows, joints, um, R, a0[ix["target"]][rsel], lam_k[rsel],
+                                         fr_k[rsel], (a0[ix["mu_cos"]], a0[ix["mu_sin"]]), args.local_sweeps)
+                outcome = f"{args.local_sweeps} sweeps"
+            c_local = time.process_time() - c
+            print(f"   root region of depth {depth}: {int(inside.sum())} bodies, {len(rsel)} rows, {len(jsel)} "
+                  f"joints; {local} {outcome} in {c_local:.3f} s CPU")
+            if out is None:
+                continue
+            lam, fr = lam_k.copy(), fr_k.copy()
+            lam[rsel], fr[rsel] = out[0], out[1]
+            for m in args.more:
+                a, c = run(m, lam, fr)
+                report(f"GS {k} + {local}(depth {depth}) + {m}", a, cpu_k + c_local + c)
 
 
 if __name__ == "__main__":

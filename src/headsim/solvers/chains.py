@@ -1319,6 +1319,29 @@ def _contact_matrix(a, b, lever_a, lever_b, d, N):
     return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(nr, N))
 
 
+def _exact_system(model, rows, u_minus, R_mid, joints, used):
+    """The linear pieces of :func:`_exact_final_solve` over the bodies ``used`` (their local order): M̃ = M + SᵀCS
+    (sparse (N, N), N = 6 len(used); M block diagonal m I₃, I_world at R_mid; S the joints' spin differences
+    ω_l − ω_k, C their spring rows), the momentum M u⁻ + SᵀC ω_rel,0 (N,), the joints' gap-rate rows G (3 nj, N):
+    (v_k + ω_k × r_k) − (v_l + ω_l × r_l), and the contact rows J = [normal, t₁, t₂] (each (rows, N), t₁ from
+    the body's axis)."""
+    jk, jl, jrk, jrl, _, jc, jw0, _ = joints
+    n = len(used)
+    N = 6 * n
+    loc = np.full(model.n_segments, -1, np.int64)
+    loc[used] = np.arange(n)
+    M = _body_mass_matrix(model.mass[used], _scaled_frames(R_mid[used], model.inertia[used]))
+    S, G = _joint_matrices(loc[jl], np.where(jk >= 0, loc[np.maximum(jk, 0)], -1), jrk, jrl, N)
+    Cb = scipy.sparse.block_diag(list(jc), format="csr") if len(jl) else scipy.sparse.csr_matrix((0, 0))
+    Mt = (M + S.T @ Cb @ S).tocsr()
+    rhs = M @ u_minus[used].reshape(-1) + S.T @ (Cb @ jw0.reshape(-1))
+    t1, t2 = _tangent_frames(R_mid[rows.body, :, 2], rows.normal)
+    partner = rows.partner
+    pb = np.where(partner >= 0, loc[np.maximum(partner, 0)], -1)
+    J = [_contact_matrix(loc[rows.body], pb, rows.lever, rows.partner_lever, d, N) for d in (rows.normal, t1, t2)]
+    return Mt, rhs, G, J
+
+
 def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, polygon, max_dof=EXACT_MAX_DOF,
                        rounds=8):
     """The velocity solve's problem solved exactly (Schur complement, :func:`_min_norm_solve`) on the active set the
@@ -1340,24 +1363,8 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
     N = 6 * n
     if N > max_dof or not len(body):
         return _fail("too large")
-    loc = np.full(model.n_segments, -1, np.int64)
-    loc[used] = np.arange(n)
-    Iw = _scaled_frames(R_mid[used], model.inertia[used])
-    # M (block diagonal: m I₃, I_world), the joints' spin-difference rows S (ω_l − ω_k) and gap-rate rows G
-    # (v_k + ω_k × r_k − v_l − ω_l × r_l), all sparse, assembled from their entries
-    M = _body_mass_matrix(model.mass[used], Iw)
-    um = u_minus[used].reshape(-1)
-    rhs = M @ um
-    nj = len(jl)
-    S, G = _joint_matrices(loc[jl], np.where(jk >= 0, loc[np.maximum(jk, 0)], -1), jrk, jrl, N)
-    Cb = scipy.sparse.block_diag(list(jc), format="csr") if nj else scipy.sparse.csr_matrix((0, 0))
-    Mt = (M + S.T @ Cb @ S).tocsr()
-    rhs = rhs + S.T @ (Cb @ jw0.reshape(-1))
-    # contact rows (n, t1, t2) on both bodies
-    nr = len(body)
-    t1, t2 = _tangent_frames(R_mid[body, :, 2], rows.normal)
-    pb = np.where(partner >= 0, loc[np.maximum(partner, 0)], -1)
-    J = [_contact_matrix(loc[body], pb, rows.lever, rows.partner_lever, d, N) for d in (rows.normal, t1, t2)]
+    Mt, rhs, G, J = _exact_system(model, rows, u_minus, R_mid, joints, used)
+    nj, nr = len(jl), len(body)
     active = lam > 0
     ratio = np.zeros((nr, 2))
     ratio[active] = fr[active] / lam[active, None]
