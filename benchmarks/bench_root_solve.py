@@ -14,7 +14,10 @@ first coupled contact solve is captured (as in ``bench_contact_convergence.py``)
   velocity the iterate's). Local solvers (``--local``): ``exact``, :func:`headsim.solvers.chains._exact_final_solve`
   (active set from the k sweeps' impulses, least-norm Schur complement, up to ``--rounds`` rounds); ``pgs``,
   :func:`local_delassus_pgs`, ``--local-sweeps`` sweeps of projected block Gauss–Seidel on the region's exact
-  Delassus matrix (its chains, clamped at the roots and held at their far ends, eliminated exactly);
+  Delassus matrix (its chains, clamped at the roots and held at their far ends, eliminated exactly); ``dual``,
+  :func:`block_dual_pgs`, the same sweeps as block coordinate descent of the whole problem over the region's
+  rows: the other rows' impulses frozen, no body held, the Delassus matrix over the whole chains of the fibres
+  the rows touch, started from the iterate's velocities;
 * ``GS k + warm m``: the same continuation without the local solve.
 
 Printed: CPU time, the relative error of the velocity correction in the kinetic metric against a
@@ -23,7 +26,7 @@ normal impulse (N s).
 
 Usage: python benchmarks/bench_root_solve.py [--fibres 30] [--segments 30] [--settle 20] [--geometry former]
        [--friction none] [--sweeps 30] [--more 10 30 90] [--depth 3 8] [--reference 20000] [--rounds 60]
-       [--local exact pgs] [--local-sweeps 200]
+       [--local exact pgs dual] [--local-sweeps 200]
 
 Measured (twenty-second session, serial kernel; Python prototypes of the local solvers):
 
@@ -38,12 +41,23 @@ Measured (twenty-second session, serial kernel; Python prototypes of the local s
   ('inconsistent' within 60 rounds, 'active set' within the shipped 8: from 30 sweeps' impulses the sticking /
   sliding guess is too far off); ``pgs`` at depth 3 (90 rows, 0.3 s): 0.227 / 0.220 after 30 / 90 more sweeps
   (plain 0.921 / 0.903); at depth 8 (344 rows, 1.1 s): 3.8 after 30 more sweeps (a transient) and 0.041
-  after 90.
+  after 90; ``dual`` at depth 3 (0.5 s) and 8 (1.3–1.5 s): 0.295 / 0.293, without a transient (the regions' impulse
+  sums 2.972e-5 / 2.973e-5 N s from 1.8e-7 / 2.0e-7).
+* derived geometry, the 120 × 100 proxy of the reference scene at t = 0.5 s (aniso; 12,000 segments, 27,745
+  rows, 32,228 candidates; the strand over the sphere's rim, a 4,000-sweep reference): here the iteration is
+  not stuck (30 sweeps 0.041, 30 + 30 / 30 + 90 0.032 / 0.018, 60 / 120 sweeps 0.028 / 0.012), and ``pgs``
+  wrecks it: depth 3 (282 bodies, 1,017 rows, 4.9 s) 3.9e3 / 3.1e2 after 30 / 90 more sweeps, the normal
+  impulses summing to 2.4e-2 N s against 4.3e-6 (a held region is not a sub-problem of the whole: a body
+  pressed between held ones can take unbounded impulses); depth 8 (952 bodies, 2,704 rows, 34 s) 225 / 0.87.
+  ``dual`` is safe but hardly helps: depth 3 (28 s) 0.0302 / 0.0182, depth 8 (84 s) 0.0302 / 0.0165 after 30 /
+  90 more sweeps, against 0.0324 / 0.0184 without it.
 
-So the slow mode of the pinched ringlet is the root region: one solve of it on its exact Delassus matrix takes
-the iteration from 0.92 to 0.04–0.06 of its error, where 90 more plain sweeps take it to 0.90. Not yet a
-solver: the prototypes cost 0.3–1.6 s here (the sweeps 10 ms), the depth-8 transient needs damping or
-repeated local solves, and the resting strand of the reference scene was measured only as below.
+So the slow mode of the pinched ringlet is its root region: one solve of it on its exact Delassus matrix takes the
+iteration from 0.92 to 0.04–0.3 of its error, where 90 more plain sweeps take it to 0.90. On the derived
+geometry's proxy at t = 0.5 s the iteration has no such mode (the errors fall with the sweeps), and the safe form
+(``dual``) gains 7–10 %; the held form (``pgs``) must not be used there. Whether the full-size resting strand
+(whose root segments overlap from t ≈ 0.47 s on, ``bench_drape.py``, nineteenth and twentieth sessions) has the
+ringlet's mode was not measured (no saved state). Not a solver yet: the prototypes cost 0.3–84 s.
 """
 
 from __future__ import annotations
@@ -55,30 +69,36 @@ import types
 import numpy as np
 
 
-def local_delassus_pgs(model, rows, joints, u_minus, R, targets, lam, fr, polygon, sweeps):
-    """Projected block Gauss–Seidel on the local problem's exact Delassus matrix W = J_c K⁻¹ J_cᵀ (K: the bodies'
-    M̃ with the joints as equality rows, :func:`headsim.solvers.chains._exact_system`; J_c the contacts' normal, t₁,
-    t₂ rows): per contact the normal impulse max(0, λ + (target − v_n)/W_nn), then the friction impulse by the
-    kernel's exact polygon QP (λ·conv{μ_β d_β}); every update applied to all contact velocities at once. Returns
-    (λ, friction) of the rows after ``sweeps`` sweeps, started from the given impulses."""
+def local_delassus(model, rows, joints, R, used, chunk=256):
+    """The exact Delassus matrix W = J_c K⁻¹ J_cᵀ (3 rows per contact: normal, t₁, t₂) of the contact rows over the
+    bodies ``used`` (K: their M̃ with the joints as equality rows, :func:`headsim.solvers.chains._exact_system`),
+    with J_c; K⁻¹ applied in chunks of columns."""
     import scipy.sparse
     import scipy.sparse.linalg
 
     from headsim.solvers import chains as C
+
+    Mt, _, G, J = C._exact_system(model, rows, np.zeros((model.n_segments, 6)), R, joints, used)
+    N, m = Mt.shape[0], len(rows.body)
+    lu = scipy.sparse.linalg.splu(scipy.sparse.bmat([[Mt, -G.T], [G, None]]).tocsc())
+    Jc = scipy.sparse.vstack(J).tocsr()[np.arange(3 * m).reshape(3, m).T.reshape(-1)]  # rows n, t₁, t₂ per contact
+    JcT = Jc.T.tocsc()
+    W = np.empty((3 * m, 3 * m))
+    for c0 in range(0, 3 * m, chunk):
+        rhs = np.zeros((N + G.shape[0], min(chunk, 3 * m - c0)))
+        rhs[:N] = JcT[:, c0:c0 + chunk].toarray()
+        W[:, c0:c0 + chunk] = Jc @ lu.solve(rhs)[:N]
+    return W, Jc, lu, N
+
+
+def delassus_pgs(W, v, x, targets, polygon, sweeps):
+    """Projected block Gauss–Seidel on W: per contact the normal impulse max(0, λ + (target − v_n)/W_nn), then the
+    friction impulse by the kernel's exact polygon QP (λ·conv{μ_β d_β}); every update applied to all contact
+    velocities v (3 per contact, consistent with the impulses x) at once. Returns x (m, 3) after ``sweeps``."""
     from headsim.solvers._kernels import chains as K
 
-    jk, jl = joints[0], joints[1]
-    used = np.unique(np.concatenate([rows.body, rows.partner[rows.partner >= 0], jk[jk >= 0], jl]))
-    Mt, rhs, G, J = C._exact_system(model, rows, u_minus, R, joints, used)
-    N, m = Mt.shape[0], len(rows.body)
-    kkt = scipy.sparse.bmat([[Mt, -G.T], [G, None]]).tocsc()
-    lu = scipy.sparse.linalg.splu(kkt)
-    u_free = lu.solve(np.concatenate([rhs, joints[4].reshape(-1)]))[:N]
-    Jc = scipy.sparse.vstack(J).tocsr()[np.arange(3 * m).reshape(3, m).T.reshape(-1)]  # rows n, t₁, t₂ per contact
-    Y = lu.solve(np.vstack([Jc.T.toarray(), np.zeros((G.shape[0], 3 * m))]))[:N]
-    W = np.asarray(Jc @ Y)
-    x = np.column_stack([lam, fr]).reshape(-1).copy()
-    v = Jc @ u_free + W @ x
+    x, v = x.reshape(-1).copy(), v.copy()
+    m = len(x) // 3
     px, py = (np.ascontiguousarray(p) for p in polygon)
     for _ in range(sweeps):
         for i in range(m):
@@ -98,7 +118,34 @@ def local_delassus_pgs(model, rows, joints, u_minus, R, targets, lam, fr, polygo
             if df.any():
                 x[a + 1:a + 3] = f
                 v += W[:, a + 1:a + 3] @ df
-    x = x.reshape(m, 3)
+    return x.reshape(m, 3)
+
+
+def local_delassus_pgs(model, rows, joints, u_minus, R, targets, lam, fr, polygon, sweeps):
+    """``--local pgs``: the root region (its other bodies held) solved by :func:`delassus_pgs` from its free
+    velocities J_c u_free (u_free: K⁻¹ of the momentum and the joint targets). Returns (λ, friction)."""
+    jk, jl = joints[0], joints[1]
+    used = np.unique(np.concatenate([rows.body, rows.partner[rows.partner >= 0], jk[jk >= 0], jl]))
+    from headsim.solvers import chains as C
+
+    W, Jc, lu, N = local_delassus(model, rows, joints, R, used)
+    _, rhs, _, _ = C._exact_system(model, rows, u_minus, R, joints, used)
+    u_free = lu.solve(np.concatenate([rhs, joints[4].reshape(-1)]))[:N]
+    x = np.column_stack([lam, fr])
+    x = delassus_pgs(W, Jc @ u_free + W @ x.reshape(-1), x, targets, polygon, sweeps)
+    return x[:, 0].copy(), x[:, 1:].copy()
+
+
+def block_dual_pgs(model, rows, joints, u, R, targets, lam, fr, polygon, sweeps):
+    """``--local dual``: block coordinate descent of the whole problem over the root region's rows, the other rows'
+    impulses frozen: W over every segment of the fibres those rows touch (whole chains, roots anchored, no body
+    held), started from the current velocities J_c u (which already hold every impulse). Returns (λ, friction)."""
+    fibres = np.unique(model.segment_fibre[np.concatenate([rows.body, rows.partner[rows.partner >= 0]])])
+    used = np.flatnonzero(np.isin(model.segment_fibre, fibres))
+    jsel = np.flatnonzero(np.isin(joints[1], used))
+    chain_joints = tuple(j[jsel] for j in joints[:7]) + (None,)
+    W, Jc, _, _ = local_delassus(model, rows, chain_joints, R, used)
+    x = delassus_pgs(W, Jc @ u[used].reshape(-1), np.column_stack([lam, fr]), targets, polygon, sweeps)
     return x[:, 0].copy(), x[:, 1:].copy()
 
 
@@ -114,8 +161,9 @@ def main():
     ap.add_argument("--depth", type=int, nargs="+", default=[3, 8])
     ap.add_argument("--reference", type=int, default=20000)
     ap.add_argument("--rounds", type=int, default=60)
-    ap.add_argument("--local", nargs="+", choices=("exact", "pgs"), default=["exact", "pgs"],
-                    help="local solvers: the active-set exact solve, projected Gauss-Seidel on the exact Delassus")
+    ap.add_argument("--local", nargs="+", choices=("exact", "pgs", "dual"), default=["exact", "pgs", "dual"],
+                    help="local solvers: the active-set exact solve, projected Gauss-Seidel on the held region's "
+                         "exact Delassus matrix, block descent over the region's rows with whole chains")
     ap.add_argument("--local-sweeps", type=int, default=200)
     args = ap.parse_args()
     from bench_contact_convergence import _residuals, iterate_args
@@ -222,9 +270,15 @@ def main():
                                            rounds=args.rounds)
                 out = None if out is None else out[1:]
                 outcome = "ok" if out is not None else dict(C.EXACT_FAILURES)
-            else:
+            elif local == "pgs":
                 out = local_delassus_pgs(local_model, rows, joints, um, R, a0[ix["target"]][rsel], lam_k[rsel],
                                          fr_k[rsel], (a0[ix["mu_cos"]], a0[ix["mu_sin"]]), args.local_sweeps)
+                outcome = f"{args.local_sweeps} sweeps"
+            else:
+                all_joints = tuple(a0[ix[name]] for name in ("joint_k", "joint_l", "joint_rk", "joint_rl",
+                                                             "joint_target", "joint_compliance_inv", "joint_w0"))
+                out = block_dual_pgs(model, rows, all_joints, u_k, R, a0[ix["target"]][rsel], lam_k[rsel],
+                                     fr_k[rsel], (a0[ix["mu_cos"]], a0[ix["mu_sin"]]), args.local_sweeps)
                 outcome = f"{args.local_sweeps} sweeps"
             c_local = time.process_time() - c
             print(f"   root region of depth {depth}: {int(inside.sum())} bodies, {len(rsel)} rows, {len(jsel)} "
@@ -233,6 +287,7 @@ def main():
                 continue
             lam, fr = lam_k.copy(), fr_k.copy()
             lam[rsel], fr[rsel] = out[0], out[1]
+            print(f"   local impulses: {len(rsel)} rows, sum {out[0].sum():.4e} N s (before {lam_k[rsel].sum():.4e})")
             for m in args.more:
                 a, c = run(m, lam, fr)
                 report(f"GS {k} + {local}(depth {depth}) + {m}", a, cpu_k + c_local + c)
