@@ -146,6 +146,38 @@ def iterate_args():
     return {name: i for i, name in enumerate(inspect.signature(KC.coupled_iterate.py_func).parameters)}
 
 
+def capture_first_solve(fibres, segments, settle, friction, geometry, overrides=None):
+    """The ``sphere-helical`` drape (``geometry`` 'former' or 'derived') advanced ``settle`` steps, and the argument
+    list of the next step's first ``coupled_iterate`` call (copies). Returns (scene, state before that step, args)."""
+    from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
+    from headsim.solvers import chains as C
+    from headsim.solvers._kernels import chains_coupled as KC
+
+    scene = build_drape_scene("sphere-helical", friction, n_fibres=fibres, segments=segments,
+                              geometry=HelicalSphereGeometry.former() if geometry == "former" else None,
+                              **(overrides or {}))
+    solver = C.ChainSolver(scene.options)
+    state = scene.state
+    for _ in range(settle):
+        state = solver.step(scene.model, state, scene.dt, scene.obstacles)
+    captured = []
+    originals = (KC.coupled_iterate, KC.coupled_iterate_parallel)
+
+    def capture(orig):
+        def wrapped(*a):
+            if not captured:
+                captured.append([x.copy() if isinstance(x, np.ndarray) else x for x in a])
+            return orig(*a)
+        return wrapped
+
+    KC.coupled_iterate, KC.coupled_iterate_parallel = (capture(f) for f in originals)
+    try:
+        solver.step(scene.model, state, scene.dt, scene.obstacles)
+    finally:
+        KC.coupled_iterate, KC.coupled_iterate_parallel = originals
+    return scene, state, captured[0]
+
+
 def _residuals(a, u):
     """(max bound violation m/s, max joint gap-rate residual m/s) of twists u for the captured arguments."""
     ix = iterate_args()
@@ -181,36 +213,13 @@ def main():
     args = ap.parse_args()
     import ast
 
-    from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
-    from headsim.solvers import chains as C
     from headsim.solvers._kernels import chains_coupled as KC
 
     print(f"load average {os.getloadavg()}")
     overrides = {k: ast.literal_eval(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     print(f"geometry {args.geometry}, option overrides {overrides}")
-    geometry = HelicalSphereGeometry.former() if args.geometry == "former" else None
-    scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
-                              geometry=geometry, **overrides)
-    solver = C.ChainSolver(scene.options)
-    state = scene.state
-    for _ in range(args.settle):
-        state = solver.step(scene.model, state, scene.dt, scene.obstacles)
-    captured = []
-    originals = (KC.coupled_iterate, KC.coupled_iterate_parallel)
-
-    def capture(orig):
-        def wrapped(*a):
-            if not captured:
-                captured.append([x.copy() if isinstance(x, np.ndarray) else x for x in a])
-            return orig(*a)
-        return wrapped
-
-    KC.coupled_iterate, KC.coupled_iterate_parallel = (capture(f) for f in originals)
-    try:
-        solver.step(scene.model, state, scene.dt, scene.obstacles)
-    finally:
-        KC.coupled_iterate, KC.coupled_iterate_parallel = originals
-    a0 = captured[0]
+    scene, state, a0 = capture_first_solve(args.fibres, args.segments, args.settle, args.friction, args.geometry,
+                                           overrides)
     ix = iterate_args()
     U, LAM = ix["u"], ix["lam_out"]
     u_minus, mass, R, inertia = (a0[ix[k]] for k in ("u", "mass", "R", "inertia"))

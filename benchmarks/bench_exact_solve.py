@@ -3,10 +3,10 @@ the Gauss–Seidel answer alone, in the same process.
 
 Usage: python benchmarks/bench_exact_solve.py [--steps 300] [--stack-sweeps 30 150]
 
-Scenes (both from ``tests/solvers/test_chains.py``, rebuilt here):
+Scenes (those of ``tests/solvers/test_chains.py``):
 
-* the resting 4-layer stack: four crossed layers of three 70 µm × 3 mm fibres, chains of 5 segments (60
-  bodies), on the plane y = 0, Δt = 1 ms, ε = 0; every crossing sticks, so a crossing's rows next to a joint
+* the resting 4-layer stack (:func:`headsim.solvers.chain_scenes.crossed_layer_stack`): four crossed layers of
+  three 70 µm × 3 mm fibres, chains of 5 segments (60 bodies), on the plane y = 0, Δt = 1 ms, ε = 0; every crossing sticks, so a crossing's rows next to a joint
   are redundant with the joint rows. A fibre's elastic sag between supports 1 mm apart is
   5qL⁴/(384 EI) = 1.4e-10 m: a layer sinking further is numerical creep;
 * the clamped bent fibre (``bench_energy_ledger.py``'s scene: 20 × 1 mm, held bent onto a plane by its own
@@ -45,29 +45,14 @@ R_FIBRE = 35e-6
 DT = 1e-3
 
 
-def capsule_stack(layers=4, per_layer=3, length=3e-3, segments=5):
-    """Crossed layers of straight unanchored chains on the plane y = 0 (model, state)."""
-    from headsim.solvers.chains import chain_model_from_polylines
-
-    polys = []
-    for lay in range(layers):
-        y = R_FIBRE + 2 * R_FIBRE * lay
-        for k in range(per_layer):
-            off = (k - (per_layer - 1) / 2) * length / per_layer
-            a = np.array([-length / 2, y, off]) if lay % 2 == 0 else np.array([off, y, -length / 2])
-            b = np.array([length / 2, y, off]) if lay % 2 == 0 else np.array([off, y, length / 2])
-            polys.append(np.linspace(a, b, segments + 1))
-    nodes = np.concatenate(polys)
-    return chain_model_from_polylines(nodes, np.arange(0, len(nodes) + 1, segments + 1), radius=R_FIBRE,
-                                      anchored=False)
-
-
 def run_stack(steps, **options):
     from headsim.collide import PlaneField
     from headsim.solvers import chains
     from headsim.solvers.chains import ChainOptions, ChainSolver, Obstacle
 
-    model, state = capsule_stack()
+    from headsim.solvers.chain_scenes import crossed_layer_stack
+
+    model, state = crossed_layer_stack(segments=5, radius=R_FIBRE)
     solver = ChainSolver(ChainOptions(**options))
     plane = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
     y0 = state.position[:, 1].copy()

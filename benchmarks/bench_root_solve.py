@@ -166,36 +166,13 @@ def main():
                          "exact Delassus matrix, block descent over the region's rows with whole chains")
     ap.add_argument("--local-sweeps", type=int, default=200)
     args = ap.parse_args()
-    from bench_contact_convergence import _residuals, iterate_args
+    from bench_contact_convergence import _residuals, capture_first_solve, iterate_args
 
-    from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
     from headsim.solvers import chains as C
     from headsim.solvers._kernels import chains_coupled as KC
 
-    geometry = HelicalSphereGeometry.former() if args.geometry == "former" else None
-    scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
-                              geometry=geometry)
-    solver = C.ChainSolver(scene.options)
-    state = scene.state
-    for _ in range(args.settle):
-        state = solver.step(scene.model, state, scene.dt, scene.obstacles)
-    captured = []
-    originals = (KC.coupled_iterate, KC.coupled_iterate_parallel)
-
-    def capture(orig):
-        def wrapped(*a):
-            if not captured:
-                captured.append([x.copy() if isinstance(x, np.ndarray) else x for x in a])
-            return orig(*a)
-        return wrapped
-
-    KC.coupled_iterate, KC.coupled_iterate_parallel = (capture(f) for f in originals)
-    try:
-        solver.step(scene.model, state, scene.dt, scene.obstacles)
-    finally:
-        KC.coupled_iterate, KC.coupled_iterate_parallel = originals
+    scene, state, a0 = capture_first_solve(args.fibres, args.segments, args.settle, args.friction, args.geometry)
     ix = iterate_args()
-    a0 = captured[0]
     n_listed = a0[ix["n_listed_rows"]]
     u_minus, mass, R = a0[ix["u"]].copy(), a0[ix["mass"]], a0[ix["R"]]
     model = scene.model

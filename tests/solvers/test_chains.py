@@ -13,6 +13,7 @@ from scipy.optimize import minimize
 from headsim.collide import PlaneField
 from headsim.errors import ParameterError
 from headsim.solvers import _kernels
+from headsim.solvers.chain_scenes import crossed_layer_stack
 from headsim.solvers.chains import (
     STANDARD_GRAVITY,
     ChainOptions,
@@ -82,17 +83,7 @@ def test_anisotropic_friction_slides_one_way_and_sticks_the_other():
 
 
 def _capsule_stack(layers=4, per_layer=3, L=3e-3, segments=1):
-    polys = []
-    for lay in range(layers):
-        y = R_FIBRE + 2 * R_FIBRE * lay
-        for k in range(per_layer):
-            off = (k - (per_layer - 1) / 2) * L / per_layer
-            a = np.array([-L / 2, y, off]) if lay % 2 == 0 else np.array([off, y, -L / 2])
-            b = np.array([L / 2, y, off]) if lay % 2 == 0 else np.array([off, y, L / 2])
-            polys.append(np.linspace(a, b, segments + 1))
-    nodes = np.concatenate(polys)
-    return chain_model_from_polylines(nodes, np.arange(0, len(nodes) + 1, segments + 1), radius=R_FIBRE,
-                                      anchored=False)
+    return crossed_layer_stack(layers, per_layer, L, segments, R_FIBRE)
 
 
 def test_resting_stack_of_chains_keeps_its_height_and_energy_never_increases():
