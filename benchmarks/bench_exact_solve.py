@@ -6,9 +6,9 @@ Usage: python benchmarks/bench_exact_solve.py [--steps 300] [--stack-sweeps 30 1
 Scenes (those of ``tests/solvers/test_chains.py``):
 
 * the resting 4-layer stack (:func:`headsim.solvers.chain_scenes.crossed_layer_stack`): four crossed layers of
-  three 70 µm × 3 mm fibres, chains of 5 segments (60 bodies), on the plane y = 0, Δt = 1 ms, ε = 0; every crossing sticks, so a crossing's rows next to a joint
-  are redundant with the joint rows. A fibre's elastic sag between supports 1 mm apart is
-  5qL⁴/(384 EI) = 1.4e-10 m: a layer sinking further is numerical creep;
+  three 70 µm × 3 mm fibres, chains of 5 segments (60 bodies), on the plane y = 0, Δt = 1 ms, ε = 0; every
+  crossing sticks, so a crossing's rows next to a joint are redundant with the joint rows. A fibre's elastic sag
+  between supports 1 mm apart is 5qL⁴/(384 EI) = 1.4e-10 m: a layer sinking further is numerical creep;
 * the clamped bent fibre (``bench_energy_ledger.py``'s scene: 20 × 1 mm, held bent onto a plane by its own
   rest curvature).
 
