@@ -69,16 +69,18 @@ import types
 import numpy as np
 
 
-def local_delassus(model, rows, joints, R, used, chunk=256):
+def local_delassus(model, rows, joints, R, used, u_minus=None, chunk=256):
     """The exact Delassus matrix W = J_c K⁻¹ J_cᵀ (3 rows per contact: normal, t₁, t₂) of the contact rows over the
     bodies ``used`` (K: their M̃ with the joints as equality rows, :func:`headsim.solvers.chains._exact_system`),
-    with J_c; K⁻¹ applied in chunks of columns."""
+    with J_c; K⁻¹ applied in chunks of columns. Returns (W, J_c, u_free): u_free = K⁻¹ of the momentum at
+    ``u_minus`` and the joint targets (velocities of ``used``), None without ``u_minus``."""
     import scipy.sparse
     import scipy.sparse.linalg
 
     from headsim.solvers import chains as C
 
-    Mt, _, G, J = C._exact_system(model, rows, np.zeros((model.n_segments, 6)), R, joints, used)
+    Mt, momentum, G, J = C._exact_system(model, rows, np.zeros((model.n_segments, 6)) if u_minus is None else u_minus,
+                                         R, joints, used)
     N, m = Mt.shape[0], len(rows.body)
     lu = scipy.sparse.linalg.splu(scipy.sparse.bmat([[Mt, -G.T], [G, None]]).tocsc())
     Jc = scipy.sparse.vstack(J).tocsr()[np.arange(3 * m).reshape(3, m).T.reshape(-1)]  # rows n, t₁, t₂ per contact
@@ -88,7 +90,8 @@ def local_delassus(model, rows, joints, R, used, chunk=256):
         rhs = np.zeros((N + G.shape[0], min(chunk, 3 * m - c0)))
         rhs[:N] = JcT[:, c0:c0 + chunk].toarray()
         W[:, c0:c0 + chunk] = Jc @ lu.solve(rhs)[:N]
-    return W, Jc, lu, N
+    u_free = None if u_minus is None else lu.solve(np.concatenate([momentum, joints[4].reshape(-1)]))[:N]
+    return W, Jc, u_free
 
 
 def delassus_pgs(W, v, x, targets, polygon, sweeps):
@@ -124,13 +127,9 @@ def delassus_pgs(W, v, x, targets, polygon, sweeps):
 def local_delassus_pgs(model, rows, joints, u_minus, R, targets, lam, fr, polygon, sweeps):
     """``--local pgs``: the root region (its other bodies held) solved by :func:`delassus_pgs` from its free
     velocities J_c u_free (u_free: K⁻¹ of the momentum and the joint targets). Returns (λ, friction)."""
-    jk, jl = joints[0], joints[1]
-    used = np.unique(np.concatenate([rows.body, rows.partner[rows.partner >= 0], jk[jk >= 0], jl]))
     from headsim.solvers import chains as C
 
-    W, Jc, lu, N = local_delassus(model, rows, joints, R, used)
-    _, rhs, _, _ = C._exact_system(model, rows, u_minus, R, joints, used)
-    u_free = lu.solve(np.concatenate([rhs, joints[4].reshape(-1)]))[:N]
+    W, Jc, u_free = local_delassus(model, rows, joints, R, C._exact_bodies(rows, joints), u_minus)
     x = np.column_stack([lam, fr])
     x = delassus_pgs(W, Jc @ u_free + W @ x.reshape(-1), x, targets, polygon, sweeps)
     return x[:, 0].copy(), x[:, 1:].copy()
@@ -144,7 +143,7 @@ def block_dual_pgs(model, rows, joints, u, R, targets, lam, fr, polygon, sweeps)
     used = np.flatnonzero(np.isin(model.segment_fibre, fibres))
     jsel = np.flatnonzero(np.isin(joints[1], used))
     chain_joints = tuple(j[jsel] for j in joints[:7]) + (None,)
-    W, Jc, _, _ = local_delassus(model, rows, chain_joints, R, used)
+    W, Jc, _ = local_delassus(model, rows, chain_joints, R, used)
     x = delassus_pgs(W, Jc @ u[used].reshape(-1), np.column_stack([lam, fr]), targets, polygon, sweeps)
     return x[:, 0].copy(), x[:, 1:].copy()
 

@@ -1319,6 +1319,12 @@ def _contact_matrix(a, b, lever_a, lever_b, d, N):
     return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(nr, N))
 
 
+def _exact_bodies(rows, joints):
+    """The bodies of the exact system, sorted: every body of the contact rows and the joints."""
+    jk, jl = joints[0], joints[1]
+    return np.unique(np.concatenate([rows.body, rows.partner[rows.partner >= 0], jk[jk >= 0], jl]))
+
+
 def _exact_system(model, rows, u_minus, R_mid, joints, used):
     """The linear pieces of :func:`_exact_final_solve` over the bodies ``used`` (their local order): M̃ = M + SᵀCS
     (sparse (N, N), N = 6 len(used); M block diagonal m I₃, I_world at R_mid; S the joints' spin differences
@@ -1351,14 +1357,14 @@ def _exact_final_solve(model, rows, lam, fr, targets, u_minus, R_mid, joints, po
     and their spring rows (``joints``: :meth:`ChainSolver._joint_rows`) exactly, M at R_mid. Rows whose λ comes
     out negative leave the set, rows whose bound is violated by more than 1e-12 m/s join it, sticking friction
     outside the polygon slides (on the polygon along its direction), sliding friction that would accelerate its
-    contact sticks, until nothing changes (at most ``rounds`` times; a set met twice ends it). Returns (u (S, 6), λ (rows,), friction (rows, 2))
-    or None (the reason counted in :data:`EXACT_FAILURES`) when the system has more than ``max_dof`` degrees of
-    freedom or no such set was found."""
-    jk, jl, jrk, jrl, jt, jc, jw0, _ = joints
-    body, partner = rows.body, rows.partner
+    contact sticks, until nothing changes (at most ``rounds`` times; a set met twice ends it). Returns (u (S, 6),
+    λ (rows,), friction (rows, 2)) or None (the reason counted in :data:`EXACT_FAILURES`) when the system has more
+    than ``max_dof`` degrees of freedom or no such set was found."""
+    jl, jt = joints[1], joints[4]
+    body = rows.body
     if 6 * len(np.unique(jl)) > max_dof:  # a lower bound of the bodies below, without the rows' unique
         return _fail("too large")
-    used = np.unique(np.concatenate([body, partner[partner >= 0], jk[jk >= 0], jl]))
+    used = _exact_bodies(rows, joints)
     n = len(used)
     N = 6 * n
     if N > max_dof or not len(body):
