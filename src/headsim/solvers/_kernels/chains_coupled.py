@@ -17,6 +17,15 @@ iteration (:func:`coupled_iterate`) are separate kernels, so that solves on the 
 velocity and the push-out solve of one harmonisation pass) share the set-up; :func:`project_coupled`
 runs both. Each is compiled twice from the same Python function: serial and ``parallel`` (``prange``
 over fibres and contacts in the set-up, over fibres in the sweeps).
+
+Inlining: the helpers that loop over a chain or fill a whole row (:func:`_chain_factor`, :func:`_chain_sweep`,
+:func:`_coupling_block`, :func:`_contact_rows`) are called, not inlined at Numba-IR level: every ``prange`` loop
+of the parallel build got its own inlined copy, and Numba's type inference of those copies was most of the
+compilation (measured cold, one process: set-up 16.8 → 5.4 s serial, 43.5 → 6.5 s parallel; iteration
+29 → 25 s serial, 64 → 40 s parallel), with the same iterates bitwise (4-step state hash of the reference
+ringlet start) and the time per step within the noise (reference ringlet 1.02–1.10 against 1.05–1.06 s;
+resting 40 × 30 strand, serial contact phase +2 % (noise), parallel the same). The per-row-visit helpers stay
+inlined (un-inlining ``_extrapolate_rows`` too cost the serial resting contact phase ≈ 4 %).
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ from numba import njit, prange
 
 from headsim.solvers._kernels.chains import _frame, _inv_inertia_into, _polygon_qp, inv6_into
 from headsim.solvers._kernels.chains_pairs import row_normal_speed
-from headsim.solvers._kernels.twins import called_twin, serial_and_parallel
+from headsim.solvers._kernels.twins import serial_and_parallel
 
 # The partial sweeps' slack band per row (see the sweep schedule in _coupled_iterate_impl): this factor × the
 # point-velocity changes of its two bodies since the previous full sweep. Measured with the captured solves of
@@ -50,7 +59,7 @@ def _skew(r, b, c):
     return -r[1] if c == 0 else r[0]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _coupling_block(out, scale, im, Iw, rj, ri, C):
     """out (6, 6) += scale · [[E/m − r̃_j I⁻¹ r̃_i, −r̃_j I⁻¹], [−C I⁻¹ r̃_i, −C I⁻¹]]: the change of joint j's
     residual (gap-rate row with lever r_j, spring row with compliance C) per unit impulse (p, Λ) of a joint
@@ -83,7 +92,7 @@ def _coupling_block(out, scale, im, Iw, rj, ri, C):
             out[3 + a, 3 + c] -= scale * cy
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _chain_factor(j0, j1, joint_k, joint_l, joint_rk, joint_rl, C, mass, Ik, Il, Dinv, G, Up):
     """Block-tridiagonal (Thomas) factorisation of the joint system of one chain (rows j0:j1, consecutive
     joints along one fibre): Dinv[j] = (D_j − G_j Up_{j−1})⁻¹, G[j] = Lo_j Dinv[j−1], Up[j] = ∂e_j/∂q_{j+1}."""
@@ -122,7 +131,7 @@ def _chain_factor(j0, j1, joint_k, joint_l, joint_rk, joint_rl, C, mass, Ik, Il,
         inv6_into(D, Dinv[j])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _chain_sweep(j0, j1, joint_k, joint_l, joint_rk, joint_rl, joint_target, C, joint_w0, u, mass, Ik, Il,
                  Dinv, G, Up, Lam, y, dq):
     """Solve the whole joint system of one chain exactly for the current twists u and apply the impulse
@@ -200,12 +209,7 @@ def _apply_joint_impulse(u, b, r, dq, j, Iw, mass, sign):
         u[b, 3 + z] += sign * (Iw[j, z, 0] * t0 + Iw[j, z, 1] * t1 + Iw[j, z, 2] * t2)
 
 
-# a called (not inlined) copy for the root sweeps (see ``root_sweeps`` of _coupled_iterate_impl): a third inlined
-# copy of the chain solve lengthened the compilation of the two kernel builds by ≈ 24 s (measured)
-_chain_sweep_called = called_twin(_chain_sweep)
-
-
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _contact_rows(c, sc, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W, Iw):
     """Jacobian rows (n, t₁, t₂) of contact c on both bodies, their mobility images M⁻¹Jᵀ and the 3×3
     Delassus block W = J_A M_A⁻¹ J_Aᵀ + J_B M_B⁻¹ J_Bᵀ (t₁ from body A's axis), stored at slot ``sc``."""
@@ -834,9 +838,9 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                 for ch in prange(nch):
                     j0 = chain_off[ch]
                     if joint_k[j0] < 0:
-                        _chain_sweep_called(j0, min(chain_off[ch + 1], j0 + root_segments), joint_k, joint_l,
-                                            joint_rk, joint_rl, joint_target, joint_compliance_inv, joint_w0, u,
-                                            mass, Ik, Il, Dinv, G, Up, Lam, y, dq)
+                        _chain_sweep(j0, min(chain_off[ch + 1], j0 + root_segments), joint_k, joint_l, joint_rk,
+                                     joint_rl, joint_target, joint_compliance_inv, joint_w0, u, mass, Ik, Il, Dinv, G,
+                                     Up, Lam, y, dq)
                 _visit_root_rows(rs % 2 == 0, root_rows, n_root, n0, pslot, body, partner, JA, JB, MA, MB, W, target,
                                  lam, fr, u, dun, mu_cos, mu_sin, m, rvr, rpx, rpy, rBl, rcl)
         dot = 0.0  # the momentum's restart test over this sweep's listed rows (before promotions move them)

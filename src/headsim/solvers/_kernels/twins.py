@@ -32,13 +32,6 @@ def parallel_twin(func):
     return njit(cache=True, parallel=True)(_renamed_copy(func, "_parallel"))
 
 
-def called_twin(func):
-    """``njit(cache=True)`` build of a copy of ``func`` named ``<name>_called``, with its own cache files: a
-    separately compiled, called version of an ``inline="always"`` helper, for the places where another
-    inlined copy would only lengthen the compilation of the kernel that uses it."""
-    return njit(cache=True)(_renamed_copy(func, "_called"))
-
-
 def serial_and_parallel(func):
     """(serial, parallel) dispatchers of ``func``: ``njit(cache=True)`` and :func:`parallel_twin`."""
     return njit(cache=True)(func), parallel_twin(func)
