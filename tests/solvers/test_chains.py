@@ -1284,6 +1284,27 @@ def test_exact_final_solve_holds_the_resting_stack_at_its_elastic_sag():
     assert sag < 2e-10 and sink.max() < sag
 
 
+def test_a_solve_the_exact_final_solve_replaced_is_not_counted_as_capped():
+    """StepStats.qp_capped counts the step's contact solves that ended at the sweep cap and whose answer was
+    used. With 10 sweeps per solve (and no sweep budget) every Gauss–Seidel solve ends at the cap; in one step
+    of the settled 4-layer stack whose last velocity solve the exact final solve replaced, one capped solve
+    fewer is counted than in the same step without the exact solve (the first pass and the push-out solve are
+    the same in both: they do not depend on the last velocity solve's answer)."""
+    model, state = _capsule_stack(segments=5)
+    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    settle = ChainSolver(ChainOptions())
+    for _ in range(20):
+        state = settle.step(model, state, 1e-3, obstacles)
+    stats = {}
+    for exact in (True, False):
+        solver = ChainSolver(ChainOptions(qp_iterations=10, sweep_budget=1, exact_final_solve=exact))
+        solver.step(model, state, 1e-3, obstacles)
+        stats[exact] = solver.last_stats
+    assert stats[True].exact_solves == 1 and stats[False].exact_solves == 0
+    assert stats[False].qp_capped >= 2
+    assert stats[True].qp_capped == stats[False].qp_capped - 1
+
+
 def _crossing_axes(persistent, y_start=8e-6, mid_step_axis=-5e-6):
     """Two crossed free 3 mm fibres (70 µm, one segment each, no gravity): B lies across A with their axes
     ``y_start`` apart (overlap 2r − y_start). One step at rest records the pair's normal (ChainSolver keeps the

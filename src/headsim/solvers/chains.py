@@ -1049,7 +1049,8 @@ class StepStats:
     obstacle_contacts: int = 0
     newton_iterations: int = 0
     qp_sweeps: int = 0
-    qp_capped: int = 0  # coupled mode: contact solves of the step that hit the sweep cap (qp_iterations)
+    qp_capped: int = 0  # coupled mode: contact solves of the step that hit the sweep cap (qp_iterations); a solve
+    # whose answer the exact final solve replaced does not count (nor its residual in qp_residual)
     qp_residual: float = 0.0  # coupled mode: largest final sweep residual of the step's solves, m/s
     harmonisation_iterations: int = 0
     energy_bound: float = float("nan")  # J, end_velocity_positions: B of the step's velocity solve (nan: none)
@@ -2495,6 +2496,7 @@ class ChainSolver:
                 # a model small enough for the exact final solve tries it after the capped Gauss–Seidel first and
                 # runs the sweep budget only when it fails (ChainOptions.exact_final_solve)
                 exact_first = endvel and o.exact_final_solve and 6 * model.n_segments <= EXACT_MAX_DOF
+                capped, residual = self._qp_capped, self._qp_residual  # restored if the exact solve replaces this one
                 u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                        sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring,
                                        spring_step=spring_step, joints_last=endvel, budget=endvel and not exact_first)
@@ -2512,7 +2514,8 @@ class ChainSolver:
                                                    budget=True)
                             pass_promoted += self._promoted
                             exact = self._exact_solve(model, rows, gaps, dt, u_minus, R_mid)
-                        if exact is not None:
+                        if exact is not None:  # the Gauss–Seidel answers it replaces are not the step's solves
+                            self._qp_capped, self._qp_residual = capped, residual
                             u_vel, lam[:] = exact[0], exact[1]
                             self._impulses = (exact[1].copy(), exact[2])
                             self._continued += 1
