@@ -146,9 +146,10 @@ def iterate_args():
     return {name: i for i, name in enumerate(inspect.signature(KC.coupled_iterate.py_func).parameters)}
 
 
-def capture_first_solve(fibres, segments, settle, friction, geometry, overrides=None):
-    """The ``sphere-helical`` drape (``geometry`` 'former' or 'derived') advanced ``settle`` steps, and the argument
-    list of the next step's first ``coupled_iterate`` call (copies). Returns (scene, state before that step, args)."""
+def capture_first_solve(fibres, segments, settle, friction, geometry, overrides=None, start=None):
+    """The ``sphere-helical`` drape (``geometry`` 'former' or 'derived') advanced ``settle`` steps from its start or
+    from the state saved in ``start`` (a path, see ``drape_states.py``), and the argument list of the next step's
+    first ``coupled_iterate`` call (copies). Returns (scene, state before that step, args)."""
     from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
     from headsim.solvers import chains as C
     from headsim.solvers._kernels import chains_coupled as KC
@@ -157,7 +158,12 @@ def capture_first_solve(fibres, segments, settle, friction, geometry, overrides=
                               geometry=HelicalSphereGeometry.former() if geometry == "former" else None,
                               **(overrides or {}))
     solver = C.ChainSolver(scene.options)
-    state = scene.state
+    if start:
+        from drape_states import load_state
+
+        state = load_state(start, scene.model)
+    else:
+        state = scene.state
     for _ in range(settle):
         state = solver.step(scene.model, state, scene.dt, scene.obstacles)
     captured = []
@@ -210,6 +216,9 @@ def main():
                     help="sphere-helical geometry (default: the former ringlet start the table below was measured on)")
     ap.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
                     help="ChainOptions override (Python literal), e.g. --set joint_gap_fraction=1.0")
+    ap.add_argument("--state", metavar="FILE.npz",
+                    help="start from a saved state (drape_states.py, e.g. the one bench_drape.py --save-state "
+                         "writes); --geometry then only sets up the scene")
     args = ap.parse_args()
     import ast
 
@@ -219,7 +228,7 @@ def main():
     overrides = {k: ast.literal_eval(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     print(f"geometry {args.geometry}, option overrides {overrides}")
     scene, state, a0 = capture_first_solve(args.fibres, args.segments, args.settle, args.friction, args.geometry,
-                                           overrides)
+                                           overrides, start=args.state)
     ix = iterate_args()
     U, LAM = ix["u"], ix["lam_out"]
     u_minus, mass, R, inertia = (a0[ix[k]] for k in ("u", "mass", "R", "inertia"))

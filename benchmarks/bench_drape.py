@@ -4,7 +4,7 @@ algorithm in the same run. Goal ≤ 0.2 s per step on 2 cores (seed: 30–180 s 
 
 Usage: python benchmarks/bench_drape.py [--fibres 355] [--segments 100] [--settle 30] [--steps 5]
        [--loop-steps 1] [--friction aniso] [--coupled-only] [--geometry derived|former]
-       [--set OPTION=VALUE ...]
+       [--set OPTION=VALUE ...] [--state FILE.npz] [--save-state FILE.npz]
 
 ``--geometry former`` is the ringlet start (:meth:`HelicalSphereGeometry.former`) all the timings below
 were measured on: the strand is in contact with itself from the first steps. The default derived
@@ -515,10 +515,16 @@ def main():
                          "(HelicalSphereGeometry.former(), in contact with itself from the first steps)")
     ap.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
                     help="ChainOptions override (Python literal), e.g. --set joint_gap_fraction=1.0")
+    ap.add_argument("--state", metavar="FILE.npz",
+                    help="start from a saved state (drape_states.py) instead of the scene's start")
+    ap.add_argument("--save-state", metavar="FILE.npz",
+                    help="write the state reached after the warm-up and --settle steps (drape_states.py)")
     args = ap.parse_args()
     import ast
 
     import numba
+
+    from drape_states import load_state, save_state
 
     from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
     from headsim.solvers.chains import ChainSolver
@@ -536,11 +542,13 @@ def main():
         scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
                                   geometry=geometry, contact_coupling=coupling, **overrides)
         solver = ChainSolver(scene.options)
-        state = scene.state
+        state = load_state(args.state, scene.model) if args.state else scene.state
         t0 = time.perf_counter()
         state, _, _, _, _ = _time(solver, scene, state, 2)  # compile / warm up
         print(f"[{coupling}] warm-up (incl. compile) {time.perf_counter() - t0:.1f} s")
         state, _, _, _, _ = _time(solver, scene, state, args.settle)
+        if args.save_state and coupling == "coupled":
+            print(f"[{coupling}] state at t = {state.time:.3f} s saved to {save_state(args.save_state, state)}")
         state_b, wall, cpu, phases, nc = _time(solver, scene, state, args.steps)
         timed[coupling] = (wall, cpu)
         # the row counters are kept by the coupled stage only (the per-body mode has no candidate rows)

@@ -164,13 +164,17 @@ def main():
                     help="local solvers: the active-set exact solve, projected Gauss-Seidel on the held region's "
                          "exact Delassus matrix, block descent over the region's rows with whole chains")
     ap.add_argument("--local-sweeps", type=int, default=200)
+    ap.add_argument("--state", metavar="FILE.npz",
+                    help="start from a saved state (drape_states.py, e.g. the one bench_drape.py --save-state "
+                         "writes); --geometry then only sets up the scene")
     args = ap.parse_args()
     from bench_contact_convergence import _residuals, capture_first_solve, iterate_args
 
     from headsim.solvers import chains as C
     from headsim.solvers._kernels import chains_coupled as KC
 
-    scene, state, a0 = capture_first_solve(args.fibres, args.segments, args.settle, args.friction, args.geometry)
+    scene, state, a0 = capture_first_solve(args.fibres, args.segments, args.settle, args.friction, args.geometry,
+                                           start=args.state)
     ix = iterate_args()
     n_listed = a0[ix["n_listed_rows"]]
     u_minus, mass, R = a0[ix["u"]].copy(), a0[ix["mass"]], a0[ix["R"]]

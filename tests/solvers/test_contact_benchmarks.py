@@ -1,5 +1,5 @@
 """The chain-solver benchmarks run (issue 10): the replay of captured coupled contact solves, the exact final
-solve's comparison and the root-region experiment.
+solve's comparison, the root-region experiment and the drape benchmark's saved states.
 
 ``benchmarks/bench_contact_convergence.py`` (and ``bench_contact_domains.py``, which reads the captured calls
 through the same ``iterate_args``) rerun :func:`headsim.solvers._kernels.chains_coupled.coupled_iterate` from
@@ -52,3 +52,45 @@ def test_root_solve_experiment_runs():
     assert out.returncode == 0, out.stderr[-2000:]
     assert re.search(r"^GS 30 \+ warm 5 +CPU", out.stdout, re.M), out.stdout
     assert re.search(r"root region of depth 8: \d+ bodies", out.stdout), out.stdout
+
+
+def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
+    """``benchmarks/bench_drape.py --save-state`` writes the state reached after its warm-up and settle steps, and
+    ``--state`` starts a run from it (at its time); ``drape_states.load_state`` refuses a file made for another
+    number of segments, and a loaded state is the saved one to float32 rounding with orthonormal rotations."""
+    saved = tmp_path / "state.npz"
+    common = [sys.executable, str(ROOT / "benchmarks" / "bench_drape.py"), "--fibres", "4", "--segments", "10",
+              "--steps", "1", "--coupled-only"]
+    out = subprocess.run(common + ["--settle", "3", "--save-state", str(saved)], capture_output=True, text=True,
+                         timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert re.search(r"state at t = 0\.005 s saved to", out.stdout), out.stdout  # 2 warm-up + 3 settle steps
+    out = subprocess.run(common + ["--settle", "0", "--state", str(saved)], capture_output=True, text=True,
+                         timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    # the time printed is the one before the timed step: the saved 5 ms + 2 warm-up steps
+    assert re.search(r"40 segments, t = 0\.007 s", out.stdout), out.stdout
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from drape_states import load_state, save_state
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    import numpy as np
+    import pytest
+
+    from headsim.hair.drape import build_drape_scene
+
+    scene = build_drape_scene("sphere-helical", "aniso", n_fibres=4, segments=10)
+    state = load_state(saved, scene.model)
+    again = load_state(save_state(tmp_path / "again.npz", state), scene.model)
+    np.testing.assert_allclose(again.position, state.position, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(np.einsum("sab,sac->sbc", again.rotation, again.rotation), np.broadcast_to(np.eye(3),
+                               again.rotation.shape), atol=1e-12)
+    np.testing.assert_allclose(again.rotation, state.rotation, atol=1e-6)
+    assert again.time == state.time == pytest.approx(0.005)
+    other = build_drape_scene("sphere-helical", "aniso", n_fibres=4, segments=12)
+    with pytest.raises(SystemExit, match="holds 40 segments, the scene has 48"):
+        load_state(saved, other.model)
+    with pytest.raises(SystemExit, match="no saved state"):
+        load_state(tmp_path / "missing.npz", other.model)
