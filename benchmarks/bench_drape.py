@@ -467,6 +467,19 @@ anchored root region, was measured on captured solves (``bench_root_solve.py``):
 (30 × 30) one solve of the root region on its exact Delassus matrix takes the Gauss–Seidel from 0.92 to 0.04–0.3
 of its error (90 more sweeps: 0.90); on the derived geometry's 120 × 100 proxy at t = 0.5 s the iteration has no
 such stuck mode and the safe form of that solve gains 7–10 %. The full-size resting strand was not measured.
+
+Issue 10, twenty-third session: a resting state of the reference scene is in the repository,
+``benchmarks/data/drape_355x100_aniso_t1.0.npz`` (derived geometry, aniso, t = 1.0 s, made by this session's
+solver from t = 0 in 1,000 steps, 36 min wall on the 2 idle cores: 2.2 s per step on average, landing steps
+t = 90–100 ms 5.3–9.5 s, t = 0.13–0.5 s 1.6–2.5 s, t = 0.5–1.0 s 2.0–2.5 s). Time the resting strand from it with
+``--state benchmarks/data/drape_355x100_aniso_t1.0.npz --settle 3 --steps 5 --coupled-only`` (the first steps from a
+loaded state start cold: no warm-start impulses). Measured, machine idle: **2.10 / 2.25 s per step** (contacts
+1.88 / 2.01 s, detection 0.12–0.13 s, joints 0.05 s; 14.9 k active contacts, 75 k rows, 113 k candidates; every
+solve at its cap, the largest 60 sweeps); with ``--set root_sweeps=0`` 1.79 s (contacts 1.56 s): the root sweeps
+cost 17–25 % of a resting step here (the twentieth session measured +9 % at t = 1.5 s). Goal 0.2 s: ≈ 10× off
+at rest. The Numba compile-time change of this session (``chains_coupled``'s chain helpers called, not inlined)
+leaves the iterates bitwise and the ringlet start's time per step within the noise (1.02–1.10 against
+1.05–1.06 s).
 """
 
 from __future__ import annotations

@@ -58,6 +58,16 @@ geometry's proxy at t = 0.5 s the iteration has no such mode (the errors fall wi
 (``dual``) gains 7–10 %; the held form (``pgs``) must not be used there. Whether the full-size resting strand
 (whose root segments overlap from t ≈ 0.47 s on, ``bench_drape.py``, nineteenth and twentieth sessions) has the
 ringlet's mode was not measured (no saved state). Not a solver yet: the prototypes cost 0.3–84 s.
+
+Twenty-third session, the full-size resting strand (``--fibres 355 --segments 100 --settle 2 --geometry derived
+--friction aniso --state benchmarks/data/drape_355x100_aniso_t1.0.npz --local dual --depth 3 --reference 4000
+--more 30 90``; t = 1.002 s, 75,068 rows, 114,329 candidates, 35,500 joints): the iteration **stalls** here — 30 /
+60 / 120 sweeps 0.0547 / 0.0354 / 0.0341 (30 + 30 / 30 + 90: 0.0543 / 0.0357), its normal impulses summing to
+2.24e-5 N s after 60 and 120 sweeps against the reference's 2.45e-5 (largest bound violation 2.6 / 1.6 mm/s,
+joint gap-rate residual 5.8 / 4.4 mm/s). The depth-3 root region (873 bodies, 4,428 rows, 1,164 joints) carries
+half of all the normal impulse (1.07e-5 → 1.23e-5 N s after ``dual``), and ``dual`` there (288 s CPU) gives 0.0437 /
+0.0308 after 30 / 90 more sweeps against 0.0543 / 0.0357 without it: 13–20 % less error, so the root region is part
+of the stalled mode but not all of it. Depth 8 and ``exact`` / ``pgs`` were not run (time).
 """
 
 from __future__ import annotations
