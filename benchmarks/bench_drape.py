@@ -533,6 +533,8 @@ def main():
     ap.add_argument("--save-state", metavar="FILE.npz",
                     help="write the state reached after the warm-up and --settle steps (drape_states.py)")
     args = ap.parse_args()
+    if args.save_state and not os.path.isdir(os.path.dirname(os.path.abspath(args.save_state))):
+        ap.error(f"--save-state: no directory for {args.save_state}")  # before the settle steps, not after them
     import ast
 
     import numba

@@ -15,6 +15,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -70,15 +73,15 @@ def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     # the time printed is the one before the timed step: the saved 5 ms + 2 warm-up steps
     assert re.search(r"40 segments, t = 0\.007 s", out.stdout), out.stdout
+    out = subprocess.run(common + ["--settle", "0", "--save-state", str(tmp_path / "no" / "state.npz")],
+                         capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 2 and "--save-state: no directory" in out.stderr and "warm-up" not in out.stdout
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
     try:
         from drape_states import load_state, save_state
     finally:
         sys.path.remove(str(ROOT / "benchmarks"))
-    import numpy as np
-    import pytest
-
     from headsim.hair.drape import build_drape_scene
 
     scene = build_drape_scene("sphere-helical", "aniso", n_fibres=4, segments=10)

@@ -787,14 +787,15 @@ class ChainOptions:
         twenty-second session), in 1 round, rarely 2 (the default stack 199 / 1 of 200, the clamped fibre 295 /
         5): the stack sinks 2.5e-11 m (150 sweeps) / 2.8e-11 m (defaults) in 200 / 300 steps against 1.9e-9 /
         2.1e-9 m (its elastic sag is 1.4e-10 m), 34–35 against 32–37 ms per step (150 sweeps), 35–40 against
-        33–34 (defaults); the clamped fibre rests 1.5 instead of 2.5 nm deep, its energy rises in 28 instead of 107 of the 300 steps (largest 3.4e-23 J against 4.1e-23 J),
-        and its 300 steps take 2.7–2.9 s instead of 2.1–2.2 s. With an absolute residual tolerance alone (1e-12
-        m/s) the default stack failed in every step (its first round missed by 2.2e-12 m/s of a 1e-2 m/s
-        change: the truncation's round-off), and a failing solve costs up to ``rounds`` least-squares solves
-        (79 against 40 ms per step there); an (active, sticking) set met twice fails at once as 'active set
-        cycles'. On a model of at most :data:`EXACT_MAX_DOF` / 6 = 100 bodies the last pass's velocity solve
-        stops at ``qp_iterations`` and the exact solve is tried on its active set; only when that fails does
-        the Gauss–Seidel go on, from its impulses, under ``sweep_budget``, and the exact solve is tried again.
+        33–34 (defaults); the clamped fibre rests 1.5 instead of 2.5 nm deep, its energy rises in 28 instead of
+        107 of the 300 steps (largest 3.4e-23 J against 4.1e-23 J), and its 300 steps take 2.7–2.9 s instead of
+        2.1–2.2 s. With an absolute residual tolerance alone (1e-12 m/s) the default stack failed in every step
+        (its first round missed by 2.2e-12 m/s of a 1e-2 m/s change: the truncation's round-off), and a failing
+        solve costs up to ``rounds`` least-squares solves (79 against 40 ms per step there); an (active, sticking)
+        set met twice fails at once as 'active set cycles'. On a model of at most :data:`EXACT_MAX_DOF` / 6 = 100
+        bodies the last pass's velocity solve stops at ``qp_iterations`` and the exact solve is tried on its
+        active set; only when that fails does the Gauss–Seidel go on, from its impulses, under ``sweep_budget``,
+        and the exact solve is tried again.
         Measured: the default stack 32 → 21 ms per step with bitwise the same states (the exact solve finds the
         same set), the 1,000-step stack test (150 sweeps) 50 → 24 s; the clamped fibre: the same resting depth,
         1 of 300 first tries fails ('active set') and the retry succeeds, its energy rises in 43 instead of 28
