@@ -23,10 +23,13 @@ def save_state(path, state) -> Path:
     path = Path(path)
     q = Rotation.from_matrix(state.rotation).as_quat()
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, time=np.float64(state.time), position=state.position.astype(np.float32),
-                        quaternion=q.astype(np.float32), velocity=state.velocity.astype(np.float32),
-                        angular_velocity=state.angular_velocity.astype(np.float32))
-    tmp.replace(path)
+    try:
+        np.savez_compressed(tmp, time=np.float64(state.time), position=state.position.astype(np.float32),
+                            quaternion=q.astype(np.float32), velocity=state.velocity.astype(np.float32),
+                            angular_velocity=state.angular_velocity.astype(np.float32))
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)  # no partial file, also when the write fails
     return path
 
 
