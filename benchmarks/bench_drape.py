@@ -420,7 +420,7 @@ the coupled kernel that adds cycle counters per section, ``llvm.readcyclecounter
   since their last one: nothing to skip (every chain changed in every sweep at t = 200 ms); the push-out solve
   warm-started from the velocity solve's impulses: landing 8–12 % faster (t = 86–89 ms: 8.8 / 4.6 / 4.1 / 3.8 against
   10.3 / 5.2 / 4.3 / 4.1 s), penetration and kinetic energy the same to 2–3 digits, not kept (in-step warm starts raised
-  the energy of the stack tests before, see WARM_START_FRACTION, and this was not validated again).
+  the energy of the stack tests before, see ChainOptions.warm_start_fraction, and this was not validated again).
 * The joint stage's Newton factors now go to arrays kept across steps (30 MB of fresh pages per step before): joints
   phase 0.0435 → 0.041–0.0425 s per step; ringlet 4-step hash unchanged (a2aae719…).
 
