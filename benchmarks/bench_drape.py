@@ -480,6 +480,24 @@ cost 17–25 % of a resting step here (the twentieth session measured +9 % at t 
 at rest. The Numba compile-time change of this session (``chains_coupled``'s chain helpers called, not inlined)
 leaves the iterates bitwise and the ringlet start's time per step within the noise (1.02–1.10 against
 1.05–1.06 s).
+
+Issue 10, twenty-fourth session: the coupled solve now starts from the previous step's whole answer
+(``ChainOptions.warm_start_fraction`` = 1; the former constant was 0.5). Why: replaying the resting step's first
+solve (t = 1.003 s) against a 2,000-sweep reference, the half warm start starts 65 % off in Σ|λ − λ_ref|/Σλ_ref and
+ends its 60 sweeps at Σλ = 2.24e-5 against 2.41e-5 N s: every step throws half of the load path away and rebuilds
+it within the cap. With the full one the same replay ends at Σλ = 2.5388e-5 against 2.5383e-5 N s, and fewer solves
+are extended past their 30 sweeps by late candidate promotions. Whole steps with ``wsf_run``-style runs (machine
+idle but its speed drifting by up to 50 % within the hour, so only interleaved pairs count; each mode on its own
+trajectory): at rest (from the saved state, 20 steps, two rounds) 2.33 / 2.07 against 3.38 / 3.07 s per step
+(−32 %); after the landing (t = 0.12 s, 30 steps) 2.33 against 2.89 s (−19 %); the landing (t = 0.08 s, 25 steps)
+7.16 against 6.93 s (+3 %, within the drift; a first, non-interleaved pair had shown +24 %). Energy change over
+those runs the same to two digits, no step raising the total energy, no positive energy bound. This script's
+command above: 2.40 / 2.14 against 2.63 s per step (5 steps after 3: the warm start needs steps to pay).
+Tried and not kept: in-step warm starts (the second pass's velocity solve from the first pass's impulses, the
+push-out from the velocity solve's): 2.17 against 2.08 s at rest, 7.92 against 7.83 s through the landing; the
+root sweeps' rows visited by domain in parallel (27 % of the 8 k root rows cross the two domains): root-sweep
+cost 1.03 against 1.19 s over 9 replayed solves, within the noise of the solves' total. The goal stays ≈ 10× off:
+at rest every solve still ends at its cap, about half of them extended to 48–60 sweeps by 400–980 late promotions.
 """
 
 from __future__ import annotations
