@@ -496,8 +496,15 @@ command above: 2.40 / 2.14 against 2.63 s per step (5 steps after 3: the warm st
 Tried and not kept: in-step warm starts (the second pass's velocity solve from the first pass's impulses, the
 push-out from the velocity solve's): 2.17 against 2.08 s at rest, 7.92 against 7.83 s through the landing; the
 root sweeps' rows visited by domain in parallel (27 % of the 8 k root rows cross the two domains): root-sweep
-cost 1.03 against 1.19 s over 9 replayed solves, within the noise of the solves' total. The goal stays ≈ 10× off:
-at rest every solve still ends at its cap, about half of them extended to 48–60 sweeps by 400–980 late promotions.
+cost 1.03 against 1.19 s over 9 replayed solves, within the noise of the solves' total.
+Then at rest about half of the solves still ran to 48–60 sweeps instead of 30: 400–980 candidates became rows during
+each solve (most next to the anchored roots, where the capped iterates swing by mm/s) and every promotion in a full
+sweep at the cap extended it. ``ChainOptions.late_promotion_overlap`` (default 0.1) extends it only for a promoted
+pair that would overlap by more than 0.1 r by the step's end (first order) if the solve stopped: at rest every solve
+then ends at 30 sweeps, 2.10 / 1.64 against 2.50 / 2.06 s per step (−16 / −20 %, 20 steps, interleaved); after the
+landing −6 %; through the landing (deficits of m/s) 7.27 against 7.43 s. Both changes together, at rest: ≈ 1.6–2.1 s
+per step against ≈ 3.1–3.4 s for the session's start on the same (slowed) machine. The goal stays ≈ 8–10× off: every
+resting solve still ends at its 30-sweep cap (the stall measured in the twenty-third session).
 """
 
 from __future__ import annotations

@@ -457,6 +457,47 @@ def test_coupled_kernel_promotes_candidates_of_a_stack_one_full_sweep_after_anot
     assert (s >= target - 1e-9).all(), s - target  # converged to the kernel tolerance 1e-12 m/s per sweep
 
 
+
+@pytest.mark.parametrize("late", [0.0, 0.1])
+def test_late_promotions_extend_a_capped_solve_only_beyond_their_overlap_bound(late):
+    """``ChainOptions.late_promotion_overlap`` in the kernel (``late_speed`` = fraction × r / Δt): the falling
+    column of the test above, 0.1 mm gaps, its pairs closing at 0.1 m/s + δ once the segment below has stopped
+    (the bound allows 0.1 m/s: the gap in one step), solved with a cap of 2 sweeps, so that every pair above the
+    lowest becomes a row in a full sweep at the cap. With δ = 1 mm/s (an overlap of 1 µm = 0.03 r if left) and
+    0.1 r the solve stops at its cap and the pairs it leaves violate their bounds by at most 0.1 r / Δt; with the
+    former rule (0) the cap is extended to 2 × 2 sweeps for them. With δ = 0.9 m/s (0.9 mm, 26 r) the cap is
+    extended under both."""
+    n, L, gap, dt = 5, 3e-3, 1e-4, 1e-3
+    late_speed = late * R_FIBRE / dt
+    ys = np.arange(n) * (2 * R_FIBRE + gap) + R_FIBRE
+    nodes = np.concatenate([[[-L / 2, y, 0.0], [L / 2, y, 0.0]] for y in ys])
+    model, state = chain_model_from_polylines(nodes, np.arange(0, 2 * n + 1, 2), radius=R_FIBRE, anchored=False)
+    up = np.array([0.0, 1.0, 0.0])
+    body = np.arange(n, dtype=np.int64)
+    partner = np.arange(-1, n - 1, dtype=np.int64)
+    normal = np.tile(up, (n, 1))
+    lever = np.tile(-R_FIBRE * up, (n, 1))
+    plever = np.tile(R_FIBRE * up, (n, 1))
+    plever[0] = 0.0
+    target = np.array([0.0] + [-gap / dt] * (n - 1))
+    z3 = np.zeros((0, 3))
+    sweeps = {}
+    for delta in (1e-3, 0.9):
+        u = np.zeros((n, 6))
+        u[:, 1] = -(gap / dt + delta)
+        sw, _, promoted = _kernels.chains_coupled.project_coupled(
+            body, partner, normal, lever, plever, target, u, model.mass.copy(), state.rotation, model.inertia.copy(),
+            np.zeros(0), np.zeros(0), 0.0, 2, 1e-12, np.zeros(n), np.zeros((n, 2)), np.zeros(0, np.int64),
+            np.zeros(0, np.int64), z3, z3, z3, np.zeros((0, 3, 3)), z3, np.zeros(1, np.int64), 1,
+            late_speed=late_speed)
+        assert promoted >= 1
+        sweeps[delta] = sw
+        if late > 0 and delta < late_speed:
+            s = ((u[1:, :3] - u[:-1, :3]) * up).sum(1)  # the pairs' normal speeds (no rotation in this column)
+            assert (s >= target[1:] - late_speed).all(), s - target[1:]
+    assert sweeps[0.9] == 4
+    assert sweeps[1e-3] == (2 if late > 0 else 4)
+
 def test_joint_duplicate_contacts_match_the_rule():
     """The Numba filter of contacts reported twice at a joint against a direct implementation of its rule
     (dict lookup), on random pairs of three 6-segment fibres whose closest points sit at segment ends or
@@ -1075,6 +1116,9 @@ def test_options_are_validated():
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ParameterError, match="warm_start_fraction"):
             ChainOptions(warm_start_fraction=bad)
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ParameterError, match="late_promotion_overlap"):
+            ChainOptions(late_promotion_overlap=bad)
     for bad in (-1, 2.5, True):
         with pytest.raises(ParameterError):
             ChainOptions(root_sweeps=bad)

@@ -524,7 +524,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                           u, mass, R, inertia, mu_cos, mu_sin, restitution, max_iter, tol, lam_out, fr_out, joint_k,
                           joint_l, joint_rk, joint_rl, joint_target, joint_compliance_inv, joint_w0, chain_off,
                           n_listed_rows, joints_last, body_part, momentum, ref_vn, u_ref0, rho0, root_sweeps,
-                          root_segments):
+                          root_segments, late_speed):
     """The iteration of :func:`project_coupled` on the set-up of :func:`_coupled_setup_impl` (whose
     candidate rows it fills in when it promotes them). Projected nonlinear Gauss–Seidel over all contacts (one row per pair, relative velocities):
     ``min Σ_b ½‖u_b − u⁻_b‖²_M`` s.t. n·(u_A − u_B)(contact) ≥ target, with the friction polygon
@@ -552,8 +552,11 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     part until a full sweep finds their bound violated at the current u (the pair would now close its gap
     within the step): they are then set up and join the iteration. The iteration does not stop on a full
     sweep that added rows: up to ``max_iter`` extra sweeps are run for them (the last sweep is full, so no
-    candidate ends violated unless that cap is hit). Returns the sweeps used, the last change (m/s) and
-    the number of candidates that became rows.
+    candidate ends violated unless that cap is hit). ``late_speed`` (m/s, ≥ 0): a full sweep at the sweep cap
+    extends it (by 9 sweeps, up to 2 ``max_iter``) only when one of the candidates it promoted violates its
+    bound by more than this, target − n·(u_A − u_B) > ``late_speed`` (× Δt: the overlap the pair would reach by
+    the step's end if the solve stopped there); 0: every promotion at the cap extends it (the former rule).
+    Returns the sweeps used, the last change (m/s) and the number of candidates that became rows.
 
     ``root_sweeps``, ``root_segments`` (``ChainOptions.root_sweeps``): after every full sweep that has not met
     the stopping rule, ``root_sweeps`` extra sweeps over the root region alone: an exact solve of the first
@@ -906,8 +909,10 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                         r = partner_lever[c]
                         rho[b] = max(rho[b], np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
                     violated[c] = sv < target[c]
+            worst_new = 0.0  # the promoted candidates' largest bound deficit target − n·Δu, m/s
             for c in range(nc):
                 if violated[c]:
+                    worst_new = max(worst_new, -cand_slack[c])  # the exact slack of a tested candidate
                     a = body[c]
                     b = partner[c]
                     pslot[c - n0] = n_slots
@@ -949,7 +954,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                     for z in range(lcnt[d] - 1, -1, -1):
                         listed[off[d] + z] = listed[lcnt_off[d] + z]
                 old_off[:] = off
-            if n_prom > 0 and it >= sweep_cap - 1 and sweep_cap < 2 * max_iter:
+            if n_prom > 0 and worst_new > late_speed and it >= sweep_cap - 1 and sweep_cap < 2 * max_iter:
                 sweep_cap = min(it + 9, 2 * max_iter)  # sweeps for the new rows, the last one full
         if full:
             last_full_change = change
@@ -993,11 +998,12 @@ coupled_iterate, coupled_iterate_parallel = serial_and_parallel(_coupled_iterate
 def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                     restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
                     joint_compliance_inv, joint_w0, chain_off, n_listed_rows=-1, parallel=False, body_part=None,
-                    momentum=0.0, root_sweeps=0, root_segments=0):
+                    momentum=0.0, root_sweeps=0, root_segments=0, late_speed=0.0):
     """Set-up and iteration in one call (see :func:`_coupled_iterate_impl` for the arguments and the
     result); ``parallel``: the ``prange`` versions; ``body_part``: the body domains of the contact sweep;
     ``momentum``: Nesterov extrapolation (0: plain Gauss–Seidel); ``root_sweeps``, ``root_segments``: the
-    root region's extra sweeps (0: none)."""
+    root region's extra sweeps (0: none); ``late_speed``: the bound deficit (m/s) above which a promotion at
+    the sweep cap extends it (0: every one)."""
     if body_part is None:
         body_part = np.zeros(0, np.int64)
     setup = coupled_setup_parallel if parallel else coupled_setup
@@ -1007,7 +1013,8 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
     return iterate(*pre, body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                    restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
                    joint_compliance_inv, joint_w0, chain_off, n_listed_rows, False, body_part, float(momentum),
-                   np.zeros(0), np.zeros((0, 6)), np.zeros(0), int(root_sweeps), int(root_segments))
+                   np.zeros(0), np.zeros((0, 6)), np.zeros(0), int(root_sweeps), int(root_segments),
+                   float(late_speed))
 
 
 def project_coupled_parallel(*args):
