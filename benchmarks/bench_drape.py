@@ -502,9 +502,14 @@ each solve (most next to the anchored roots, where the capped iterates swing by 
 sweep at the cap extended it. ``ChainOptions.late_promotion_overlap`` (default 0.1) extends it only for a promoted
 pair that would overlap by more than 0.1 r by the step's end (first order) if the solve stopped: at rest every solve
 then ends at 30 sweeps, 2.10 / 1.64 against 2.50 / 2.06 s per step (−16 / −20 %, 20 steps, interleaved); after the
-landing −6 %; through the landing (deficits of m/s) 7.27 against 7.43 s. Both changes together, at rest: ≈ 1.6–2.1 s
-per step against ≈ 3.1–3.4 s for the session's start on the same (slowed) machine. The goal stays ≈ 8–10× off: every
-resting solve still ends at its 30-sweep cap (the stall measured in the twenty-third session).
+landing −6 %; through the landing (deficits of m/s) 7.27 against 7.43 s.
+Both changes against the session's start (commit c12c9e3 in a worktree, same venv and script, alternated, 20 steps
+from the same state): at rest (t = 1.0 s) **1.42 / 1.46 against 2.39 / 2.61 s per step (−41 to −44 %)**; after the
+landing (t = 0.12 s) 1.93 against 2.59 s (−26 %); through the landing (t = 0.08 s, 15 steps) 6.85 against 5.95 s
+(+15 %: the full warm start costs there, +3 % and +24 % in the two pairs above; 40 landing steps against ≈ 900
+resting ones in the first second). Energy change over each run the same to two digits, no step raising it. The
+goal stays ≈ 7× off at rest: every resting solve still ends at its 30-sweep cap (the stall measured in the
+twenty-third session).
 """
 
 from __future__ import annotations
