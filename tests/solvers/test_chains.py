@@ -422,6 +422,25 @@ def test_relative_candidate_band_keeps_the_pair_falling_together_apart(forced_al
     assert abs(state.velocity[1, 1]) < 1e-3
 
 
+
+def _falling_column(n, gap, dt, L=3e-3):
+    """n free horizontal segments (L long) stacked along y, ``gap`` apart, the lowest touching the plane y = 0,
+    and the coupled kernel's rows: the lowest one's obstacle row (bound 0), then one candidate per neighbour
+    pair (bound −gap/Δt: the gap may close within the step), normals +y. Returns (model, state, (body, partner,
+    normal, lever, partner_lever, target))."""
+    ys = np.arange(n) * (2 * R_FIBRE + gap) + R_FIBRE
+    nodes = np.concatenate([[[-L / 2, y, 0.0], [L / 2, y, 0.0]] for y in ys])
+    model, state = chain_model_from_polylines(nodes, np.arange(0, 2 * n + 1, 2), radius=R_FIBRE, anchored=False)
+    up = np.array([0.0, 1.0, 0.0])
+    body = np.arange(n, dtype=np.int64)
+    partner = np.arange(-1, n - 1, dtype=np.int64)
+    normal = np.tile(up, (n, 1))
+    lever = np.tile(-R_FIBRE * up, (n, 1))
+    plever = np.tile(R_FIBRE * up, (n, 1))
+    plever[0] = 0.0
+    target = np.array([0.0] + [-gap / dt] * (n - 1))
+    return model, state, (body, partner, normal, lever, plever, target)
+
 def test_coupled_kernel_promotes_candidates_of_a_stack_one_full_sweep_after_another():
     """A column of five free 3 mm segments falling together at 1 m/s, 0.1 mm apart, the lowest one on a
     static obstacle (its row is the only row from the start; the four neighbour pairs are candidates: no
@@ -430,18 +449,8 @@ def test_coupled_kernel_promotes_candidates_of_a_stack_one_full_sweep_after_anot
     candidate tests are screened by the bound |n·Δu| ≤ |Δv| + |Δω| ρ of both bodies (the lower body's
     change is what violates each pair). All four pairs must become rows and, with the sweeps run to
     convergence, no bound may be violated at the end."""
-    n, L, gap, dt = 5, 3e-3, 1e-4, 1e-3
-    ys = np.arange(n) * (2 * R_FIBRE + gap) + R_FIBRE
-    nodes = np.concatenate([[[-L / 2, y, 0.0], [L / 2, y, 0.0]] for y in ys])
-    model, state = chain_model_from_polylines(nodes, np.arange(0, 2 * n + 1, 2), radius=R_FIBRE, anchored=False)
-    up = np.array([0.0, 1.0, 0.0])
-    body = np.array([0] + list(range(1, n)), np.int64)
-    partner = np.array([-1] + list(range(n - 1)), np.int64)
-    normal = np.tile(up, (n, 1))
-    lever = np.tile(-R_FIBRE * up, (n, 1))
-    plever = np.tile(R_FIBRE * up, (n, 1))
-    plever[0] = 0.0
-    target = np.array([0.0] + [-gap / dt] * (n - 1))
+    n, gap, dt = 5, 1e-4, 1e-3
+    model, state, (body, partner, normal, lever, plever, target) = _falling_column(n, gap, dt)
     u = np.zeros((n, 6))
     u[:, 1] = -1.0
     z3 = np.zeros((0, 3))
@@ -467,19 +476,10 @@ def test_late_promotions_extend_a_capped_solve_only_beyond_their_overlap_bound(l
     0.1 r the solve stops at its cap and the pairs it leaves violate their bounds by at most 0.1 r / Δt; with the
     former rule (0) the cap is extended to 2 × 2 sweeps for them. With δ = 0.9 m/s (0.9 mm, 26 r) the cap is
     extended under both."""
-    n, L, gap, dt = 5, 3e-3, 1e-4, 1e-3
+    n, gap, dt = 5, 1e-4, 1e-3
     late_speed = late * R_FIBRE / dt
-    ys = np.arange(n) * (2 * R_FIBRE + gap) + R_FIBRE
-    nodes = np.concatenate([[[-L / 2, y, 0.0], [L / 2, y, 0.0]] for y in ys])
-    model, state = chain_model_from_polylines(nodes, np.arange(0, 2 * n + 1, 2), radius=R_FIBRE, anchored=False)
-    up = np.array([0.0, 1.0, 0.0])
-    body = np.arange(n, dtype=np.int64)
-    partner = np.arange(-1, n - 1, dtype=np.int64)
-    normal = np.tile(up, (n, 1))
-    lever = np.tile(-R_FIBRE * up, (n, 1))
-    plever = np.tile(R_FIBRE * up, (n, 1))
-    plever[0] = 0.0
-    target = np.array([0.0] + [-gap / dt] * (n - 1))
+    model, state, (body, partner, normal, lever, plever, target) = _falling_column(n, gap, dt)
+    up = normal[0]
     z3 = np.zeros((0, 3))
     sweeps = {}
     for delta in (1e-3, 0.9):
