@@ -116,7 +116,6 @@ def test_resting_stack_of_chains_keeps_its_height_and_energy_never_increases():
     assert solver.last_stats.fibre_contacts >= 27  # 9 crossings per layer interface are still active
 
 
-
 def test_full_warm_start_holds_a_stack_whose_solves_stop_at_their_cap():
     """``ChainOptions.warm_start_fraction``: the resting 4-layer stack of the test above with every contact solve
     stopped after 10 sweeps (no sweep budget, no exact final solve: the regime of the reference scene, whose
@@ -138,6 +137,7 @@ def test_full_warm_start_holds_a_stack_whose_solves_stop_at_their_cap():
         sink[fraction] = (y0 - state.position[:, 1]).reshape(4, -1).mean(1).max()
     assert sink[1.0] < 0.01 * R_FIBRE
     assert sink[0.5] > R_FIBRE
+
 
 def _push_out_joint_residual(keep_joints):
     """One step of the 4-layer, 5-segment stack with every layer sunk 10 µm into the one below (the lowest
@@ -422,7 +422,6 @@ def test_relative_candidate_band_keeps_the_pair_falling_together_apart(forced_al
     assert abs(state.velocity[1, 1]) < 1e-3
 
 
-
 def _falling_column(n, gap, dt, L=3e-3):
     """n free horizontal segments (L long) stacked along y, ``gap`` apart, the lowest touching the plane y = 0,
     and the coupled kernel's rows: the lowest one's obstacle row (bound 0), then one candidate per neighbour
@@ -440,6 +439,7 @@ def _falling_column(n, gap, dt, L=3e-3):
     plever[0] = 0.0
     target = np.array([0.0] + [-gap / dt] * (n - 1))
     return model, state, (body, partner, normal, lever, plever, target)
+
 
 def test_coupled_kernel_promotes_candidates_of_a_stack_one_full_sweep_after_another():
     """A column of five free 3 mm segments falling together at 1 m/s, 0.1 mm apart, the lowest one on a
@@ -464,7 +464,6 @@ def test_coupled_kernel_promotes_candidates_of_a_stack_one_full_sweep_after_anot
                     + np.cross(u[np.maximum(partner, 0), 3:], plever), 0.0)
     s = ((vel - pvel) * normal).sum(1)
     assert (s >= target - 1e-9).all(), s - target  # converged to the kernel tolerance 1e-12 m/s per sweep
-
 
 
 @pytest.mark.parametrize("late", [0.0, 0.1])
@@ -497,6 +496,7 @@ def test_late_promotions_extend_a_capped_solve_only_beyond_their_overlap_bound(l
             assert (s >= target[1:] - late_speed).all(), s - target[1:]
     assert sweeps[0.9] == 4
     assert sweeps[1e-3] == (2 if late > 0 else 4)
+
 
 def test_joint_duplicate_contacts_match_the_rule():
     """The Numba filter of contacts reported twice at a joint against a direct implementation of its rule

@@ -823,11 +823,11 @@ class ChainOptions:
         20 steps, two rounds) 2.33 / 2.07 against 3.38 / 3.07 s per step (−32 %); after the landing (t = 0.12 s,
         30 steps) 2.33 against 2.89 s (−19 %); through the landing (t = 0.08 s, 25 steps) 7.16 against 6.93 s
         (+3 %; +24 % and, with ``late_promotion_overlap`` too, +15 % in other pairs: the full warm start costs
-        while the impulses change fast, 40 steps of the first second). The same physics to the printed digits (energy change over the run −1.3e-6 /
-        −1.2e-5 / −1.4e-4 J, box volume change +1.4 % / +35 % / +17 %), no step raising the total energy, no
-        positive energy bound B (``end_velocity_positions``). On a replayed resting solve (2,000-sweep reference
-        Σλ = 2.5383e-5 N s) the default 60 sweeps reach Σλ = 2.5388e-5 with the full warm start, 2.24e-5 (of
-        2.41e-5) with half. The former 0.5 came from the 4-layer stack test before the exact final solve and
+        while the impulses change fast, 40 steps of the first second). The same physics to the printed digits
+        (energy change over the run −1.3e-6 / −1.2e-5 / −1.4e-4 J, box volume change +1.4 % / +35 % / +17 %), no
+        step raising the total energy, no positive energy bound B (``end_velocity_positions``). On a replayed
+        resting solve (2,000-sweep reference Σλ = 2.5383e-5 N s) 60 sweeps (its 30, extended by late promotions
+        as the rule was then) reach Σλ = 2.5388e-5 with the full warm start, 2.24e-5 (of 2.41e-5) with half. The former 0.5 came from the 4-layer stack test before the exact final solve and
         the sweep budget existed (fractions 1.0 and 0.9 then raised the total energy by up to 1.4e-5 / 1e-5 of it
         in single steps); that test and every other chain and drape test pass with 1. The former first half
         step (``half_step_projection=False``, ``end_velocity_positions=False``) still needs 0.5 to keep the
@@ -2308,8 +2308,8 @@ class ChainSolver:
         lam, fr = np.empty(len(k)), np.empty((len(k), 2))
         big = len(k) >= self.options.parallel_threshold
         (KP.warm_start_rows_parallel if big else KP.warm_start_rows)(k, rows.primary, keys, lam0,
-                                                                     np.ascontiguousarray(fr0), float(self.options.warm_start_fraction),
-                                                                     lam, fr)
+                                                                     np.ascontiguousarray(fr0),
+                                                                     float(self.options.warm_start_fraction), lam, fr)
         return lam, fr
 
     # -- step ----------------------------------------------------------------------------------------
