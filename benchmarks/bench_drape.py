@@ -510,6 +510,18 @@ landing (t = 0.12 s) 1.93 against 2.59 s (−26 %); through the landing (t = 0.0
 resting ones in the first second). Energy change over each run the same to two digits, no step raising it. The
 goal stays ≈ 7× off at rest: every resting solve still ends at its 30-sweep cap (the stall measured in the
 twenty-third session).
+
+Twenty-fifth session (issue 10). Where a resting step goes (t = 1.005 s, wrappers around the calls, 6 steps):
+1.46 s per step = three coupled solves of 30 sweeps (the first pass's velocity solve, the last pass's velocity
+and push-out solves) 1.05 s (≈ 0.35 s each: ≈ 10 ms per sweep and ≈ 45 ms of first full sweep and set-up inside
+the kernel), two kernel set-ups 0.12 s, detection 0.11 s, joints 0.05 s. Replayed (the last pass's velocity
+solve against a 1,000-sweep answer): max |Δv| 13 mm/s after 30 sweeps, 18 mm/s after 10 (extended to 19 by
+late promotions), 72 mm/s after 2. The first pass's solve only predicts the last pass's mid-step state:
+``ChainOptions.predictor_sweeps`` (default 10, extended to ≤ 20 by late promotions) caps it. Against the former
+30, alternated, 20 steps from the same states: at rest 1.30 / 1.29 against 1.38 / 1.39 s per step (−6.5 %), after
+the landing 1.74 / 1.68 against 1.86 / 1.92 s (−8 %); a cap of 2 gained −15 % at rest and −10 % through the landing but opened the landing strand's
+joints to 49.6 µm (6.6 µm with 30, 8.0 µm with 10). Capping the push-out solve (``push_out_sweeps``, default
+None) at 5 gave 0.95 s per step at rest but doubled the landing's penetrations: not the default. Goal: ≈ 6.5× off.
 """
 
 from __future__ import annotations

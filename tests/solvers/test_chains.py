@@ -139,6 +139,69 @@ def test_full_warm_start_holds_a_stack_whose_solves_stop_at_their_cap():
     assert sink[0.5] > R_FIBRE
 
 
+def _stack_with_recorded_solves(monkeypatch, sunk=0.0, steps=300, **options):
+    """The 4-layer, 5-segment stack on a plane, every layer sunk ``sunk`` (m) more into the one below (the
+    lowest into the plane), run ``steps`` steps of 1 ms with ``ChainOptions(**options)``. Returns the state,
+    the initial and the final heights of the segments (m), the total energy after every step (J) and the
+    sweeps of the coupled kernel's calls by their sweep cap."""
+    model, state = _capsule_stack(segments=5)
+    y_rest = state.position[:, 1].copy()
+    x = state.position.copy()
+    x[:, 1] -= sunk * (np.repeat(np.arange(4), 15) + 1)
+    state = ChainState(x, state.rotation, state.velocity, state.angular_velocity, 0.0)
+    solver = ChainSolver(ChainOptions(**options))
+    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    kernel = _kernels.chains_coupled.coupled_iterate
+    sweeps = {}
+
+    def spy(*args):
+        out = kernel(*args)
+        sweeps.setdefault(args[23], []).append(int(out[0]))  # args[23]: the sweep cap
+        return out
+
+    monkeypatch.setattr(_kernels.chains_coupled, "coupled_iterate", spy)
+    energy = [kinetic_energy(model, state) + potential_energy(model, state)]
+    for _ in range(steps):
+        state = solver.step(model, state, 1e-3, obstacles)
+        energy.append(solver.last_stats.total_energy)
+    return state, y_rest, state.position[:, 1], np.array(energy), sweeps
+
+
+def test_predictor_solves_stopped_after_one_sweep_leave_the_stack_at_rest(monkeypatch):
+    """``ChainOptions.predictor_sweeps``: the first harmonisation pass's contact solve only predicts the last
+    pass's mid-step state, so stopping it after one sweep (two with a late promotion) must leave the resting
+    4-layer stack of the test above as it is when the step's own velocity solve converges (``qp_iterations`` =
+    150; no sweep budget, under which so small a system would run its predictor to that cap): over 300 steps the top layer sinks by less than 1 % of the fibre radius and no step raises the total
+    energy by more than 1e-6 of it (that test's tolerances). The kernel's calls, recorded by their sweep cap:
+    one predictor solve per step ending within two sweeps, and the velocity solves, which run on past them."""
+    _, y0, y, energy, sweeps = _stack_with_recorded_solves(monkeypatch, qp_iterations=150, predictor_sweeps=1,
+                                                           sweep_budget=0)
+    assert len(sweeps[1]) == len(sweeps[150]) == 300
+    assert max(sweeps[1]) <= 2 and max(sweeps[150]) > 2
+    assert (y0 - y).reshape(4, -1).mean(1).max() < 0.01 * R_FIBRE
+    assert np.diff(energy).max() <= 1e-6 * abs(energy[0])
+
+
+def test_push_out_solves_stopped_after_two_sweeps_let_a_sunk_stack_creep_down(monkeypatch):
+    """``ChainOptions.push_out_sweeps`` (default None, the ``qp_iterations`` cap), and why it is not lowered:
+    the stack of the test above with every layer sunk 10 µm into the one below (the lowest into the plane:
+    10–40 µm overlaps) and the velocity solves run to convergence (``qp_iterations`` = 150, no sweep budget).
+    With the split push-out solves run to their cap too, every layer is back at its resting height to within
+    1 % of the fibre radius after 300 steps (measured 0.4 %). Stopped after two sweeps (four with late
+    promotions), the push-out lifts the layers by less than their contacts' creep and the top layer ends more
+    than 1 % of a radius below its resting height (measured 2.2 % after 300 steps, 7.7 % after 600). The
+    kernel's calls are told apart by their sweep caps (predictor 1, push-out 2, velocity 150)."""
+    sink = {}
+    for cap in (2, None):
+        _, y0, y, _, sweeps = _stack_with_recorded_solves(monkeypatch, sunk=10e-6, qp_iterations=150,
+                                                          predictor_sweeps=1, push_out_sweeps=cap, sweep_budget=0)
+        if cap is not None:
+            assert len(sweeps[2]) > 10 and max(sweeps[2]) <= 4
+        sink[cap] = (y0 - y).reshape(4, -1).mean(1).max()
+    assert sink[None] < 0.01 * R_FIBRE
+    assert sink[2] > 0.01 * R_FIBRE
+
+
 def _push_out_joint_residual(keep_joints):
     """One step of the 4-layer, 5-segment stack with every layer sunk 10 µm into the one below (the lowest
     into the plane) and the contact solves stopped after 3 sweeps: the largest joint gap rate
@@ -1124,6 +1187,11 @@ def test_options_are_validated():
             ChainOptions(root_sweeps=bad)
         with pytest.raises(ParameterError):
             ChainOptions(root_segments=bad)
+    for bad in (0, -3, 2.5, True):
+        for name in ("predictor_sweeps", "push_out_sweeps"):
+            with pytest.raises(ParameterError, match=name):
+                ChainOptions(**{name: bad})
+    assert ChainOptions(predictor_sweeps=None, push_out_sweeps=None).push_out_sweeps is None
 
 
 def _max_axis_penetration(model, state, field, samples=201):

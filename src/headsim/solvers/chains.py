@@ -982,6 +982,36 @@ class ChainOptions:
         step 116 against 142 µm (the first-order t_i gaps), the same energy change to two digits; after the landing
         (t = 0.12 s) 2.05 against 2.19 s (−6 %); through the landing (t = 0.08 s, deficits of m/s: the
         extensions stay) 7.27 against 7.43 s, max penetration at t = 95 ms 80 against 117 µm.
+    predictor_sweeps : coupled mode, sweep cap (≥ 1; at most ``qp_iterations``) of the contact solves of the
+        harmonisation passes before the last (default 10), in systems too large for the sweep budget (R rows
+        and joints with ``sweep_budget``/R ≤ ``qp_iterations``, the reference scene's; smaller ones run them to
+        ``qp_iterations`` as before: capped at 10, the resting stack of the tests, whose velocity solves run to
+        150 sweeps, rose in energy by 1.6e-6 of it in a step, beyond its test's 1e-6). Their twists only predict: the last pass's mid-step
+        state (``end_velocity_predictor`` "previous": the touched fibres at q^i + ½Δt u'), its joint stage's
+        extra displacement and the impulses of ``half_step_projection``; the step keeps the last pass's
+        solves, which start from the previous step's impulses (``warm_start``), not from these. Late
+        promotions extend the cap as in every solve (up to twice it). None: ``qp_iterations`` (the former
+        solves). How far the cap can go down is set by the joints: a fibre that moves with u' opens its
+        joints by ≈ Δt²|ω'||ω_pred − ω'| h (see ``end_velocity_predictor``). Issue 10's twenty-fifth session,
+        reference scene, 15 steps through the landing from t = 0.08 s: max joint gap 7.96 µm with 10, 49.6 µm
+        with 2, 6.58 µm with None; mean max penetration 62.0 / 60.0 / 61.7 µm; 2 also let the clamped bent
+        fibre of the tests sink (``test_fibre_held_bent_by_its_contact_stays_out_of_it``). Time per step, runs
+        from the same states alternated with None (20 steps): at rest (t = 1.0 s) 1.30 / 1.29 against
+        1.38 / 1.39 s (−6.5 %), same energy change to three digits, no step raising it, max joint gap 7.69
+        against 7.70 µm; after the landing (t = 0.12 s) 1.74 / 1.68 against 1.86 / 1.92 s (−8 %). With 2 it
+        was 1.23 / 1.14 / 1.20 against 1.45 / 1.34 s at rest and 6.29 against 6.94 / 7.13 s through the
+        landing, which the joint gaps rule out.
+    push_out_sweeps : coupled mode, sweep cap (≥ 1; at most ``qp_iterations``) of the split push-out solve
+        (``penetration_recovery``; default None), in systems too large for the sweep budget as above. Its twists only move the positions, by the fraction β
+        of the row gaps it recovers in the step; a push-out stopped earlier recovers less of the overlap in
+        that step and the rest in the next steps.
+        None: ``qp_iterations``. Not lowered by default: with 5 (and ``predictor_sweeps`` = 2) the reference
+        scene at rest ran 0.95 against 1.38 s per step with the same penetrations, but through the landing
+        (t = 0.08–0.095 s) its mean max penetration doubled, 125 against 62 µm (4.88 against 6.94 s per step),
+        and a sunk resting stack whose push-out stops after two sweeps creeps down instead of rising back
+        (``test_push_out_solves_stopped_after_two_sweeps_let_a_sunk_stack_creep_down``). Started from this
+        step's velocity solve's impulses instead of the previous step's (tried, not kept), 5 sweeps still left
+        the landing's mean max penetration at 93 µm (4.72 s per step).
     """
 
     gravity: tuple = (0.0, -STANDARD_GRAVITY, 0.0)
@@ -1026,6 +1056,8 @@ class ChainOptions:
     root_segments: int = 8
     persistent_normals: bool = False
     late_promotion_overlap: float = 0.1
+    predictor_sweeps: int | None = 10
+    push_out_sweeps: int | None = None
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -1062,6 +1094,10 @@ class ChainOptions:
             raise ParameterError(f"late_promotion_overlap must be ≥ 0, got {self.late_promotion_overlap}")
         if not 0.0 <= self.warm_start_fraction <= 1.0:
             raise ParameterError(f"warm_start_fraction must be in [0, 1], got {self.warm_start_fraction}")
+        for name in ("predictor_sweeps", "push_out_sweeps"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1):
+                raise ParameterError(f"{name} must be an integer ≥ 1 or None, got {v!r}")
         if not 0.0 <= self.joint_gap_fraction <= 1.0:
             raise ParameterError(f"joint_gap_fraction must be in [0, 1], got {self.joint_gap_fraction}")
 
@@ -2030,8 +2066,10 @@ class ChainSolver:
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
                   x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False,
-                  tol_scale=1.0):
+                  tol_scale=1.0, sweep_cap=None):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
+        ``sweep_cap``: the solve's sweep cap when below ``qp_iterations`` in a system too large for the sweep
+        budget (``predictor_sweeps``, ``push_out_sweeps``; None: ``qp_iterations``).
         ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
         Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
         R_mid, u⁻) share the joint rows and the kernel set-up (:func:`~headsim.solvers._kernels.chains_coupled.coupled_setup`)."""
@@ -2087,8 +2125,10 @@ class ChainSolver:
             _, _, joints, mass, inertia, setup, body_part = ps
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
             cap, tol = int(o.qp_iterations), float(o.contact_tolerance)
+            n_budget = int(o.sweep_budget) // max(1, len(pr) + len(joints[0]))
+            if sweep_cap is not None and n_budget <= cap:  # a system too large for the sweep budget
+                cap = min(cap, int(sweep_cap))
             if budget:  # small systems: run to a tighter stopping rule (see ChainOptions.sweep_budget)
-                n_budget = int(o.sweep_budget) // max(1, len(pr) + len(joints[0]))
                 self._budgeted = n_budget > cap
                 if n_budget > cap:
                     cap, tol = n_budget, min(tol, float(o.small_system_tolerance)) * tol_scale
@@ -2533,7 +2573,8 @@ class ChainSolver:
                 capped, residual = self._qp_capped, self._qp_residual  # restored if the exact solve replaces this one
                 u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                        sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring,
-                                       spring_step=spring_step, joints_last=endvel, budget=endvel and not exact_first)
+                                       spring_step=spring_step, joints_last=endvel, budget=endvel and not exact_first,
+                                       sweep_cap=o.predictor_sweeps if it + 1 < o.harmonisation_iterations else None)
                 pass_promoted = self._promoted
                 if endvel:
                     # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met
@@ -2565,7 +2606,8 @@ class ChainSolver:
                     u_pos = self._contacts(rows, gaps_pos, beta_pos, order, row_off, bodies, u_minus, model, R_mid,
                                            Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm, pass_key=it,
                                            joints_last=o.split_recovery and o.recovery_keeps_joints,
-                                           u_spring=u_spring, spring_step=spring_step, budget=endvel)
+                                           u_spring=u_spring, spring_step=spring_step, budget=endvel,
+                                           sweep_cap=o.push_out_sweeps)
                     pass_promoted += self._promoted
                 checks = [(u_vel, 0.0)] + ([(u_pos, beta_pos)] if u_pos is not u_vel else [])
                 if track:  # this pass's velocity changes (against the detection's u⁻)
