@@ -519,7 +519,7 @@ solve against a 1,000-sweep answer): max |Δv| 13 mm/s after 30 sweeps, 18 mm/s 
 late promotions), 72 mm/s after 2. The first pass's solve only predicts the last pass's mid-step state:
 ``ChainOptions.predictor_sweeps`` (default 10, extended to ≤ 20 by late promotions) caps it. Against the former
 30, alternated, 20 steps from the same states: at rest 1.30 / 1.29 against 1.38 / 1.39 s per step (−6.5 %), after
-the landing 1.74 / 1.68 against 1.86 / 1.92 s (−8 %); a cap of 2 gained −15 % at rest and −10 % through the landing but opened the landing strand's
+the landing 1.74 / 1.68 against 1.86 / 1.92 s (−8 %), through it 6.75 against 7.10 s (−5 %); a cap of 2 gained −15 % at rest and −10 % through the landing but opened the landing strand's
 joints to 49.6 µm (6.6 µm with 30, 8.0 µm with 10). Capping the push-out solve (``push_out_sweeps``, default
 None) at 5 gave 0.95 s per step at rest but doubled the landing's penetrations: not the default. Goal: ≈ 6.5× off.
 """
