@@ -983,51 +983,46 @@ class ChainOptions:
         (t = 0.12 s) 2.05 against 2.19 s (−6 %); through the landing (t = 0.08 s, deficits of m/s: the
         extensions stay) 7.27 against 7.43 s, max penetration at t = 95 ms 80 against 117 µm.
     predictor_sweeps : coupled mode, sweep cap (≥ 1; at most ``qp_iterations``) of the contact solves of the
-        harmonisation passes before the last (default 10), in systems too large for the sweep budget (R rows
-        and joints with ``sweep_budget``/R ≤ ``qp_iterations``, the reference scene's; smaller ones run them to
-        ``qp_iterations`` as before: capped at 10, the resting stack of the tests, whose velocity solves run to
-        150 sweeps, rose in energy by 1.6e-6 of it in a step, beyond its test's 1e-6). Their twists only predict: the last pass's mid-step
-        state (``end_velocity_predictor`` "previous": the touched fibres at q^i + ½Δt u'), its joint stage's
-        extra displacement and the impulses of ``half_step_projection``; the step keeps the last pass's
-        solves, which start from the previous step's impulses (``warm_start``), not from these. Late
-        promotions extend the cap as in every solve (up to twice it). None: ``qp_iterations`` (the former
-        solves). How far the cap can go down is set by the joints: a fibre that moves with u' opens its
-        joints by ≈ Δt²|ω'||ω_pred − ω'| h (see ``end_velocity_predictor``). Issue 10's twenty-fifth session,
-        reference scene, 15 steps through the landing from t = 0.08 s: max joint gap 7.96 µm with 10, 49.6 µm
-        with 2, 6.58 µm with None; mean max penetration 62.0 / 60.0 / 61.7 µm; 2 also let the clamped bent
-        fibre of the tests sink (``test_fibre_held_bent_by_its_contact_stays_out_of_it``). Time per step, runs
-        from the same states alternated with None (20 steps): at rest (t = 1.0 s) 1.30 / 1.29 against
-        1.38 / 1.39 s (−6.5 %), same energy change to three digits, no step raising it, max joint gap 7.69
-        against 7.70 µm; after the landing (t = 0.12 s) 1.74 / 1.68 against 1.86 / 1.92 s (−8 %); through the
-        landing (t = 0.08 s, 15 steps) 6.75 against 7.10 s (−5 %). With 2 it
-        was 1.23 / 1.14 / 1.20 against 1.45 / 1.34 s at rest and 6.29 against 6.94 / 7.13 s through the
-        landing, which the joint gaps rule out.
+        harmonisation passes before the last (default 10), in systems too large for the sweep budget (R rows and joints
+        with ``sweep_budget``/R ≤ ``qp_iterations``, as on the reference scene); smaller systems run them to
+        ``qp_iterations`` as before (capped at 10, the resting stack of the tests, whose velocity solves run to 150
+        sweeps, rose in energy by 1.6e-6 of it in one step, beyond its test's 1e-6). Their twists only predict: the
+        last pass's mid-step state (``end_velocity_predictor`` "previous": the touched fibres at q^i + ½Δt u'), its
+        joint stage's extra displacement and the impulses of ``half_step_projection``; the step keeps the last pass's
+        solves, which start from the previous step's impulses (``warm_start``), not from these. Late promotions extend
+        the cap as in every solve (up to twice it). None: ``qp_iterations`` (the former solves). How far the cap can go
+        down is set by the joints: a fibre that moves with u' opens its joints by ≈ Δt²|ω'||ω_pred − ω'| h (see
+        ``end_velocity_predictor``). Issue 10's twenty-fifth session, reference scene, 15 steps through the landing
+        from t = 0.08 s: max joint gap 7.96 µm with 10, 49.6 µm with 2, 6.58 µm with None; mean max penetration 62.0 /
+        60.0 / 61.7 µm (2 also let the clamped bent fibre of the tests sink before the cap was limited to large
+        systems). Time per step, runs from the same states alternated with None (20 steps): at rest (t = 1.0 s) 1.30 /
+        1.29 against 1.38 / 1.39 s (−6.5 %), the same energy change to three digits, no step raising it, max joint gap
+        7.69 against 7.70 µm; after the landing (t = 0.12 s) 1.74 / 1.68 against 1.86 / 1.92 s (−8 %); through the
+        landing (t = 0.08 s, 15 steps) 6.75 against 7.10 s (−5 %). With 2 it was 1.23 / 1.14 / 1.20 against 1.45 / 1.34
+        s at rest and 6.29 against 6.94 / 7.13 s through the landing, which the joint gaps rule out.
     push_out_sweeps : coupled mode, sweep cap (≥ 1; at most ``qp_iterations``) of the split push-out solve
-        (``penetration_recovery``; default None), in systems too large for the sweep budget as above. Its twists only move the positions, by the fraction β
-        of the row gaps it recovers in the step; a push-out stopped earlier recovers less of the overlap in
-        that step and the rest in the next steps.
-        None: ``qp_iterations``. Not lowered by default: with 5 (and ``predictor_sweeps`` = 2) the reference
-        scene at rest ran 0.95 against 1.38 s per step with the same penetrations, but through the landing
-        (t = 0.08–0.095 s) its mean max penetration doubled, 125 against 62 µm (4.88 against 6.94 s per step),
-        and, with the former push-out start (``push_out_warm_start=False``), a sunk resting stack whose push-out
-        stops after two sweeps creeps down instead of rising back. Started from this
-        step's velocity solve's impulses instead of the previous step's (tried, not kept), 5 sweeps still left
-        the landing's mean max penetration at 93 µm (4.72 s per step). With ``push_out_warm_start`` (default):
-        10 sweeps ran 1.24 against 1.36 s per step at rest, 1.72 against 1.77 s after the landing and 4.79
-        against 6.75 s through it, with mean max penetrations of 116 / 46 / 67 against 119 / 41 / 62 µm.
-    push_out_warm_start : coupled mode with ``warm_start``, default True: the split push-out solve starts from
-        the previous step's push-out impulses of the same contacts (its own iteration carried on from step to
-        step, as the velocity solve's is), instead of the previous step's velocity impulses (False, the former
-        start). Both solves find the same fixed point; the push-out's differs from the velocity solve's by
-        the recovery of the overlaps (β gap / Δt), which persists from step to step while the overlaps do.
-        Every solve ends at its cap on the reference scene, so only the starting point matters there. Issue
-        10's twenty-fifth session, runs from the same states against False (20 steps; 15 through the landing):
-        at rest mean max penetration 114 against 119 µm (max 159 against 142 µm) at the same time per step
-        (1.35 / 1.31 against 1.36 / 1.30 s); after the landing (t = 0.12 s) 34.5 against 41.0 µm (max 47.9
-        against 52.4 µm; 1.75 against 1.77 s); through the landing 59.9 against 62.0 µm (6.55 against 6.75 s);
-        the same energy change to two digits, no step raising it. On the sunk 4-layer stack of the tests, with
-        the push-out stopped after 2 sweeps, it lifts the layers back as the converged push-out does, where the
-        former start lets them creep down
+        (``penetration_recovery``), in systems too large for the sweep budget as above; default None
+        (``qp_iterations``). Its twists only move the positions, by the fraction β of the row gaps it recovers in the
+        step; a push-out stopped earlier recovers less of the overlap in that step and the rest in the next ones. Not
+        lowered by default. Issue 10's twenty-fifth session, reference scene, with the former push-out start
+        (``push_out_warm_start=False``) and ``predictor_sweeps`` = 2: 5 sweeps ran 0.95 against 1.38 s per step at rest
+        with the same penetrations, but through the landing (t = 0.08–0.095 s) the mean max penetration doubled, 125
+        against 62 µm (4.88 against 6.94 s per step); started from this step's velocity solve's impulses instead
+        (tried, not kept) 93 µm (4.72 s). With the push-out's own warm start (the default) and ``predictor_sweeps`` =
+        10, 10 sweeps ran 1.24 against 1.36 s per step at rest, 1.72 against 1.77 s after the landing and 4.79 against
+        6.75 s through it, with mean max penetrations of 116 / 46 / 67 µm against 114 / 34.5 / 59.9 µm uncapped.
+    push_out_warm_start : coupled mode with ``warm_start``, default True: the split push-out solve starts from the
+        previous step's push-out impulses of the same contacts (its own iteration carried on from step to step, as the
+        velocity solve's is), instead of the previous step's velocity impulses (False, the former start, also used when
+        the previous step had no push-out). Both solves find the same fixed point; the push-out's differs from the
+        velocity solve's by the recovery of the overlaps (β gap / Δt), which persists from step to step while the
+        overlaps do. Every solve ends at its cap on the reference scene, so only the starting point matters there.
+        Issue 10's twenty-fifth session, runs from the same states against False (20 steps; 15 through the landing): at
+        rest mean max penetration 114 against 119 µm (max 159 against 142 µm) at the same time per step (1.35 / 1.31
+        against 1.36 / 1.30 s); after the landing (t = 0.12 s) 34.5 against 41.0 µm (max 47.9 against 52.4 µm; 1.75
+        against 1.77 s); through the landing 59.9 against 62.0 µm (6.55 against 6.75 s); the same energy change to two
+        digits, no step raising it. On the sunk 4-layer stack of the tests, with the push-out stopped after 2 sweeps,
+        it lifts the layers back as the converged push-out does, where the former start lets them creep down
         (``test_push_out_warm_start_lets_a_capped_push_out_lift_a_sunk_stack_back``).
     """
 
