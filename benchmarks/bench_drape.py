@@ -511,21 +511,24 @@ resting ones in the first second). Energy change over each run the same to two d
 goal stays ≈ 7× off at rest: every resting solve still ends at its 30-sweep cap (the stall measured in the
 twenty-third session).
 
-Twenty-fifth session (issue 10). Where a resting step goes (t = 1.005 s, wrappers around the calls, 6 steps):
-1.46 s per step = three coupled solves of 30 sweeps (the first pass's velocity solve, the last pass's velocity
-and push-out solves) 1.05 s (≈ 0.35 s each: ≈ 10 ms per sweep and ≈ 45 ms of first full sweep and set-up inside
-the kernel), two kernel set-ups 0.12 s, detection 0.11 s, joints 0.05 s. Replayed (the last pass's velocity
-solve against a 1,000-sweep answer): max |Δv| 13 mm/s after 30 sweeps, 18 mm/s after 10 (extended to 19 by
-late promotions), 72 mm/s after 2. The first pass's solve only predicts the last pass's mid-step state:
-``ChainOptions.predictor_sweeps`` (default 10, extended to ≤ 20 by late promotions) caps it. Against the former
-30, alternated, 20 steps from the same states: at rest 1.30 / 1.29 against 1.38 / 1.39 s per step (−6.5 %), after
-the landing 1.74 / 1.68 against 1.86 / 1.92 s (−8 %), through it 6.75 against 7.10 s (−5 %); a cap of 2 gained −15 % at rest and −10 % through the landing but opened the landing strand's
-joints to 49.6 µm (6.6 µm with 30, 8.0 µm with 10). Capping the push-out solve (``push_out_sweeps``, default
-None) at 5 gave 0.95 s per step at rest but doubled the landing's penetrations: not the default. The push-out now
-starts from its own previous solution (``push_out_warm_start``, default) instead of the velocity solve's: the same
-time per step, mean max penetration 114 against 119 µm at rest, 34.5 against 41.0 µm after the landing, 59.9
-against 62.0 µm through it; with it, 10 push-out sweeps ran 1.24 against 1.36 s at rest and 4.79 against 6.75 s
-through the landing (penetrations 116 / 46 / 67 µm), left as an option. Goal: ≈ 6.5× off.
+Twenty-fifth session (issue 10). Where a resting step goes (t = 1.005 s, wrappers around the calls, 6 steps): 1.46 s
+per step = three coupled solves of 30 sweeps (the first pass's velocity solve, the last pass's velocity and push-out
+solves) 1.05 s (≈ 0.35 s each: ≈ 10 ms per sweep and ≈ 45 ms of first full sweep and set-up inside the kernel), two
+kernel set-ups 0.12 s, detection 0.11 s, joints 0.05 s. Replayed (the last pass's velocity solve against a 1,000-sweep
+answer): max |Δv| 13 mm/s after 30 sweeps, 18 mm/s after 10 (extended to 19 by late promotions), 72 mm/s after 2. The
+first pass's solve only predicts the last pass's mid-step state: ``ChainOptions.predictor_sweeps`` (default 10,
+extended to ≤ 20 by late promotions) caps it. Against the former 30, alternated, 20 steps from the same states: at
+rest 1.30 / 1.29 against 1.38 / 1.39 s per step (−6.5 %), after the landing 1.74 / 1.68 against 1.86 / 1.92 s (−8 %),
+through it 6.75 against 7.10 s (−5 %); a cap of 2 gained −15 % at rest and −10 % through the landing but opened the
+landing strand's joints to 49.6 µm (6.6 µm with 30, 8.0 µm with 10). Capping the push-out solve (``push_out_sweeps``,
+default None) at 5 gave 0.95 s per step at rest but doubled the landing's penetrations: not the default. The push-out
+now starts from its own previous solution (``push_out_warm_start``, default) instead of the velocity solve's: the same
+time per step, mean max penetration 114 against 119 µm at rest, 34.5 against 41.0 µm after the landing, 59.9 against
+62.0 µm through it; with it, 10 push-out sweeps ran 1.24 against 1.36 s at rest and 4.79 against 6.75 s through the
+landing (penetrations 116 / 46 / 67 µm), left as an option. This benchmark's command (``--state
+benchmarks/data/drape_355x100_aniso_t1.0.npz --settle 3 --steps 5 --coupled-only``) on the session's last tree: 1.37 /
+1.35 s per step (1.34 / 1.30 s with ``--set push_out_warm_start=False``; 1.41 / 1.40 s at the session's start). Goal:
+≈ 6.5–7× off.
 """
 
 from __future__ import annotations
