@@ -116,39 +116,21 @@ def test_resting_stack_of_chains_keeps_its_height_and_energy_never_increases():
     assert solver.last_stats.fibre_contacts >= 27  # 9 crossings per layer interface are still active
 
 
-def test_full_warm_start_holds_a_stack_whose_solves_stop_at_their_cap():
-    """``ChainOptions.warm_start_fraction``: the resting 4-layer stack of the test above with every contact solve
-    stopped after 10 sweeps (no sweep budget, no exact final solve: the regime of the reference scene, whose
-    solves all end at their cap), 300 steps of 1 ms. Started from the previous step's whole answer, the
-    Gauss–Seidel carries its iteration on from step to step and the top layer keeps its height (sinks by less
-    than 1 % of the fibre radius, the tolerance of the test above; measured 0.0034 r); started from half of it,
-    it rebuilds half the load path every step and the stack sags through (measured 1.71 r; asserted > 1 r, so
-    the test tells the two apart). Energy at this cap (not asserted): single steps rise by up to 1.1e-2 of the
-    initial energy with the full warm start, 2.8e-3 with half (measured; at the defaults neither rises)."""
-    obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
-    sink = {}
-    for fraction in (1.0, 0.5):
-        model, state = _capsule_stack(segments=5)
-        solver = ChainSolver(ChainOptions(qp_iterations=10, sweep_budget=0, exact_final_solve=False,
-                                          warm_start_fraction=fraction))
-        y0 = state.position[:, 1].copy()
-        for _ in range(300):
-            state = solver.step(model, state, 1e-3, obstacles)
-        sink[fraction] = (y0 - state.position[:, 1]).reshape(4, -1).mean(1).max()
-    assert sink[1.0] < 0.01 * R_FIBRE
-    assert sink[0.5] > R_FIBRE
-
-
-def _stack_with_recorded_solves(monkeypatch, sunk=0.0, steps=300, **options):
-    """The 4-layer, 5-segment stack on a plane, every layer sunk ``sunk`` (m) more into the one below (the
-    lowest into the plane), run ``steps`` steps of 1 ms with ``ChainOptions(**options)``. Returns the state,
-    the initial and the final heights of the segments (m), the total energy after every step (J) and the
-    sweeps of the coupled kernel's calls by their sweep cap."""
+def _sunk_capsule_stack(sunk):
+    """The 4-layer stack of 5-segment chains with every layer sunk ``sunk`` (m) more into the one below (the
+    lowest into the plane y = 0). Returns (model, state, the resting heights of the segments, m)."""
     model, state = _capsule_stack(segments=5)
     y_rest = state.position[:, 1].copy()
     x = state.position.copy()
     x[:, 1] -= sunk * (np.repeat(np.arange(4), 15) + 1)
-    state = ChainState(x, state.rotation, state.velocity, state.angular_velocity, 0.0)
+    return model, ChainState(x, state.rotation, state.velocity, state.angular_velocity, 0.0), y_rest
+
+
+def _stack_with_recorded_solves(monkeypatch, sunk=0.0, steps=300, **options):
+    """:func:`_sunk_capsule_stack` on the plane, run ``steps`` steps of 1 ms with ``ChainOptions(**options)``.
+    Returns the resting and the final heights of the segments (m), the total energy after every step (J) and
+    the sweeps of the coupled kernel's calls by their sweep cap."""
+    model, state, y_rest = _sunk_capsule_stack(sunk)
     solver = ChainSolver(ChainOptions(**options))
     obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
     kernel = _kernels.chains_coupled.coupled_iterate
@@ -164,7 +146,25 @@ def _stack_with_recorded_solves(monkeypatch, sunk=0.0, steps=300, **options):
     for _ in range(steps):
         state = solver.step(model, state, 1e-3, obstacles)
         energy.append(solver.last_stats.total_energy)
-    return state, y_rest, state.position[:, 1], np.array(energy), sweeps
+    return y_rest, state.position[:, 1], np.array(energy), sweeps
+
+
+def test_full_warm_start_holds_a_stack_whose_solves_stop_at_their_cap(monkeypatch):
+    """``ChainOptions.warm_start_fraction``: the resting 4-layer stack of the test above with every contact solve
+    stopped after 10 sweeps (no sweep budget, no exact final solve: the regime of the reference scene, whose
+    solves all end at their cap), 300 steps of 1 ms. Started from the previous step's whole answer, the
+    Gauss–Seidel carries its iteration on from step to step and the top layer keeps its height (sinks by less
+    than 1 % of the fibre radius, the tolerance of the test above; measured 0.0034 r); started from half of it,
+    it rebuilds half the load path every step and the stack sags through (measured 1.71 r; asserted > 1 r, so
+    the test tells the two apart). Energy at this cap (not asserted): single steps rise by up to 1.1e-2 of the
+    initial energy with the full warm start, 2.8e-3 with half (measured; at the defaults neither rises)."""
+    sink = {}
+    for fraction in (1.0, 0.5):
+        y0, y, _, _ = _stack_with_recorded_solves(monkeypatch, qp_iterations=10, sweep_budget=0,
+                                                  exact_final_solve=False, warm_start_fraction=fraction)
+        sink[fraction] = (y0 - y).reshape(4, -1).mean(1).max()
+    assert sink[1.0] < 0.01 * R_FIBRE
+    assert sink[0.5] > R_FIBRE
 
 
 def test_predictor_solves_stopped_after_one_sweep_leave_the_stack_at_rest(monkeypatch):
@@ -175,8 +175,8 @@ def test_predictor_solves_stopped_after_one_sweep_leave_the_stack_at_rest(monkey
     the top layer sinks by less than 1 % of the fibre radius and no step raises the total energy by more than
     1e-6 of it (that test's tolerances). The kernel's calls, recorded by their sweep cap:
     one predictor solve per step ending within two sweeps, and the velocity solves, which run on past them."""
-    _, y0, y, energy, sweeps = _stack_with_recorded_solves(monkeypatch, qp_iterations=150, predictor_sweeps=1,
-                                                           sweep_budget=0)
+    y0, y, energy, sweeps = _stack_with_recorded_solves(monkeypatch, qp_iterations=150, predictor_sweeps=1,
+                                                        sweep_budget=0)
     assert len(sweeps[1]) == len(sweeps[150]) == 300
     assert max(sweeps[1]) <= 2 and max(sweeps[150]) > 2
     assert (y0 - y).reshape(4, -1).mean(1).max() < 0.01 * R_FIBRE
@@ -196,9 +196,9 @@ def test_push_out_warm_start_lets_a_capped_push_out_lift_a_sunk_stack_back(monke
     told apart by their sweep caps (predictor 1, push-out 2, velocity 150)."""
     sink = {}
     for own_start in (True, False):
-        _, y0, y, _, sweeps = _stack_with_recorded_solves(monkeypatch, sunk=10e-6, qp_iterations=150,
-                                                          predictor_sweeps=1, push_out_sweeps=2, sweep_budget=0,
-                                                          push_out_warm_start=own_start)
+        y0, y, _, sweeps = _stack_with_recorded_solves(monkeypatch, sunk=10e-6, qp_iterations=150,
+                                                       predictor_sweeps=1, push_out_sweeps=2, sweep_budget=0,
+                                                       push_out_warm_start=own_start)
         assert len(sweeps[2]) > 10 and max(sweeps[2]) <= 4
         sink[own_start] = (y0 - y).reshape(4, -1).mean(1).max()
     assert sink[True] < 0.01 * R_FIBRE
@@ -211,11 +211,7 @@ def _push_out_joint_residual(keep_joints):
     |(v_k + ω_k × r_k) − (v_l + ω_l × r_l)| of the split push-out solution (m/s), the largest push-out
     speed |v| of any segment (m/s) and the largest joint gap after the step (m). ``sweep_budget`` = 0: the
     small-system sweep budget would run the solves past the 3 sweeps."""
-    model, state = _capsule_stack(segments=5)
-    layer = np.repeat(np.arange(4), 15)
-    x = state.position.copy()
-    x[:, 1] -= 10e-6 * (layer + 1)
-    state = ChainState(x, state.rotation, state.velocity, state.angular_velocity, 0.0)
+    model, state, _ = _sunk_capsule_stack(10e-6)
     solver = ChainSolver(ChainOptions(qp_iterations=3, sweep_budget=0, recovery_keeps_joints=keep_joints))
     found = []
     contacts = solver._contacts

@@ -2478,7 +2478,7 @@ class ChainSolver:
         sweeps_box = [0]
         u_end = None
         promoted = 0
-        vel_impulses = push_impulses = None
+        vel_impulses = None
         u_vel = gaps0 = None  # the first pass's velocity solve and row gaps at t_i, read by the later passes
         joint_factor, unsprung_factor = [], []  # the joint stage's Newton factorisations of this step (x, R fixed)
         for it in range(o.harmonisation_iterations):
@@ -2631,9 +2631,8 @@ class ChainSolver:
                 if last and o.penetration_recovery > 0 and (gaps_pos < 0).any():
                     # split impulse: the penetration push-out moves the positions but is not kept as velocity
                     # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
-                    warm_pos = warm
-                    if o.push_out_warm_start and self._warm_push is not None and o.warm_start:
-                        warm_pos = self._warm_start_impulses(rows, self._warm_push)
+                    # its own previous impulses (kept only under push_out_warm_start), else the velocity solve's
+                    warm_pos = warm if self._warm_push is None else self._warm_start_impulses(rows, self._warm_push)
                     u_pos = self._contacts(rows, gaps_pos, beta_pos, order, row_off, bodies, u_minus, model, R_mid,
                                            Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm_pos, pass_key=it,
                                            joints_last=o.split_recovery and o.recovery_keeps_joints,
