@@ -367,13 +367,15 @@ def test_parallel_kernels_reproduce_the_serial_ones_bitwise():
     extrapolation) against the serial ones (the default on this size) on the ringlet start reduced to 7 × 30
     (in contact with itself from the first step), 40 steps of 1 ms: positions, rotations and velocities the
     same to the bit (every row is visited in the same order whatever the number of threads; the domains'
-    rows share no body), with candidates promoted during the solves so that those paths run."""
+    rows share no body), with candidates promoted during the solves so that those paths run. Both store the
+    kernel's arrays in float64 (``kernel_precision``'s "auto" ties float32 to the parallel kernels' size)."""
     from headsim.hair.drape import HelicalSphereGeometry
 
     runs = []
     for threshold in (10**9, 1):
         sc = build_drape_scene("sphere-helical", "aniso", n_fibres=7, segments=30,
-                               geometry=HelicalSphereGeometry.former(), parallel_threshold=threshold)
+                               geometry=HelicalSphereGeometry.former(), parallel_threshold=threshold,
+                               kernel_precision="float64")
         solver = ChainSolver(sc.options)
         state, promoted = sc.state, 0
         for _ in range(40):
@@ -384,3 +386,35 @@ def test_parallel_kernels_reproduce_the_serial_ones_bitwise():
     assert pa == pb and pa > 0
     for name in ("position", "rotation", "velocity", "angular_velocity"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_predictor_extension_false_keeps_the_predictor_at_its_cap(monkeypatch):
+    """``ChainOptions.predictor_extension``: 7 × 30 fibres of the sphere-helical drape falling onto the sphere
+    and onto themselves (150 steps of 1 ms), the predictor solves capped at one sweep (``predictor_sweeps`` = 1;
+    no sweep budget, under which so small a system would run them to ``qp_iterations``). Candidates that become
+    rows in that sweep extend it (measured: 31 of the 150 predictor solves ran 2 sweeps) unless the extension is
+    off: then every one of them stops after its sweep. The kernel's calls are recorded by their sweep cap
+    (argument 23)."""
+    from headsim.solvers import _kernels
+
+    kernel = _kernels.chains_coupled.coupled_iterate
+    predictor_sweeps = {}
+    for extension in (True, False):
+        sc = build_drape_scene("sphere-helical", "aniso", n_fibres=7, segments=30, predictor_sweeps=1,
+                               sweep_budget=0, predictor_extension=extension)
+        solver = ChainSolver(sc.options)
+        sweeps = predictor_sweeps[extension] = []
+
+        def spy(*args, sweeps=sweeps):
+            out = kernel(*args)
+            if args[23] == 1:
+                sweeps.append(int(out[0]))
+            return out
+
+        monkeypatch.setattr(_kernels.chains_coupled, "coupled_iterate", spy)
+        state = sc.state
+        for _ in range(150):
+            state = solver.step(sc.model, state, sc.dt, sc.obstacles)
+    assert len(predictor_sweeps[True]) == len(predictor_sweeps[False]) == 150
+    assert max(predictor_sweeps[True]) == 2  # the extension ran here (up to twice the cap)
+    assert max(predictor_sweeps[False]) == 1

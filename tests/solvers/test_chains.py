@@ -205,14 +205,16 @@ def test_push_out_warm_start_lets_a_capped_push_out_lift_a_sunk_stack_back(monke
     assert sink[False] > 0.01 * R_FIBRE
 
 
-def _push_out_joint_residual(keep_joints):
+def _push_out_joint_residual(keep_joints, **options):
     """One step of the 4-layer, 5-segment stack with every layer sunk 10 µm into the one below (the lowest
     into the plane) and the contact solves stopped after 3 sweeps: the largest joint gap rate
     |(v_k + ω_k × r_k) − (v_l + ω_l × r_l)| of the split push-out solution (m/s), the largest push-out
-    speed |v| of any segment (m/s) and the largest joint gap after the step (m). ``sweep_budget`` = 0: the
-    small-system sweep budget would run the solves past the 3 sweeps."""
+    speed |v| of any segment (m/s), the largest joint gap after the step (m) and the segments' positions after
+    it (m). ``sweep_budget`` = 0: the small-system sweep budget would run the solves past the 3 sweeps.
+    ``options``: further ChainOptions."""
     model, state, _ = _sunk_capsule_stack(10e-6)
-    solver = ChainSolver(ChainOptions(qp_iterations=3, sweep_budget=0, recovery_keeps_joints=keep_joints))
+    solver = ChainSolver(ChainOptions(qp_iterations=3, sweep_budget=0, recovery_keeps_joints=keep_joints,
+                                      **options))
     found = []
     contacts = solver._contacts
 
@@ -227,9 +229,9 @@ def _push_out_joint_residual(keep_joints):
         return u
 
     solver._contacts = spy
-    solver.step(model, state, 1e-3, [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))])
+    end = solver.step(model, state, 1e-3, [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))])
     assert solver.last_stats.qp_capped >= 1 and found  # the push-out solve ran and ended at the sweep cap
-    return found[-1][0], found[-1][1], solver.last_stats.max_joint_gap
+    return found[-1][0], found[-1][1], solver.last_stats.max_joint_gap, end.position
 
 
 def test_split_push_out_keeps_the_joints_closed_when_the_solve_is_capped():
@@ -245,11 +247,35 @@ def test_split_push_out_keeps_the_joints_closed_when_the_solve_is_capped():
     1e-9 of the push-out speed (the joint gap the half step then leaves is second order in its rotation,
     ≈ h (½Δt ω)², not tested here). Without it (checked, so the test can tell the two apart) the residual
     is a sizeable fraction of the push-out speed."""
-    res, speed, gap = _push_out_joint_residual(True)
+    res, speed, _, _ = _push_out_joint_residual(True)
     assert speed > 1e-3  # 10 µm × β / (½Δt) = 4 mm/s push-out: the solve did act
     assert res < 1e-9 * speed
-    res_before, speed_before, gap_before = _push_out_joint_residual(False)
+    res_before, speed_before, _, _ = _push_out_joint_residual(False)
     assert res_before > 0.01 * speed_before
+
+
+def test_float32_kernel_storage_rounds_the_exact_joint_solve_and_nothing_else():
+    """``ChainOptions.kernel_precision``: with the kernel's row and chain arrays stored in float32 (what
+    ``"auto"`` does on large capped systems such as the reference scene), the push-out of the test above still
+    ends with the exact joint solve, now with factors rounded to float32 (relative 6e-8): its joint residual is
+    that rounding times the velocities, below 1e-6 of the push-out speed (measured 1.3e-7; float64 5e-16), and
+    the step moves every segment as the float64 step does to within 1e-5 of the step's largest displacement
+    (float32's rounding with two orders of magnitude for its growth over the 3 sweeps; measured 7.7e-8, 0.7 pm
+    of 9.1 µm). ``"auto"`` picks float32 only where the parallel kernels run and the system is too large for
+    the sweep budget."""
+    res32, speed32, _, x32 = _push_out_joint_residual(True, kernel_precision="float32")
+    res64, speed64, _, x64 = _push_out_joint_residual(True, kernel_precision="float64")
+    assert speed32 > 1e-3 and res64 < 1e-9 * speed64
+    assert res32 < 1e-6 * speed32
+    assert res32 > res64  # the rounding is there: the test tells the two storages apart
+    model, start, _ = _sunk_capsule_stack(10e-6)
+    moved = np.abs(x64 - start.position).max()
+    assert np.abs(x32 - x64).max() < 1e-5 * moved
+    auto = ChainSolver(ChainOptions(parallel_threshold=10))  # 60 segments: the parallel kernels' size
+    assert auto._kernel_storage(model, 10**6) is np.float32  # 100,000 // 10⁶ = 0 sweeps of budget ≤ 30
+    assert auto._kernel_storage(model, 100) is np.float64  # a budget of 1,000 sweeps: runs towards convergence
+    assert ChainSolver(ChainOptions())._kernel_storage(model, 10**6) is np.float64  # below parallel_threshold
+    assert ChainSolver(ChainOptions(kernel_precision="float32"))._kernel_storage(model, 100) is np.float32
 
 
 def test_no_tunnelling_of_a_dropped_fibre_at_1ms():
@@ -1193,6 +1219,11 @@ def test_options_are_validated():
     assert ChainOptions(predictor_sweeps=None, push_out_sweeps=None).push_out_sweeps is None
     with pytest.raises(ParameterError, match="push_out_warm_start"):
         ChainOptions(push_out_warm_start="yes")
+    with pytest.raises(ParameterError, match="predictor_extension"):
+        ChainOptions(predictor_extension=1)
+    for bad in ("float16", "half", None):
+        with pytest.raises(ParameterError, match="kernel_precision"):
+            ChainOptions(kernel_precision=bad)
 
 
 def _max_axis_penetration(model, state, field, samples=201):

@@ -986,20 +986,50 @@ class ChainOptions:
         harmonisation passes before the last (default 10), in systems too large for the sweep budget (R rows and joints
         with ``sweep_budget``/R ≤ ``qp_iterations``, as on the reference scene); smaller systems run them to
         ``qp_iterations`` as before (capped at 10, the resting stack of the tests, whose velocity solves run to 150
-        sweeps, rose in energy by 1.6e-6 of it in one step, beyond its test's 1e-6). Their twists only predict: the
-        last pass's mid-step state (``end_velocity_predictor`` "previous": the touched fibres at q^i + ½Δt u'), its
-        joint stage's extra displacement and the impulses of ``half_step_projection``; the step keeps the last pass's
-        solves, which start from the previous step's impulses (``warm_start``), not from these. Late promotions extend
-        the cap as in every solve (up to twice it). None: ``qp_iterations`` (the former solves). How far the cap can go
-        down is set by the joints: a fibre that moves with u' opens its joints by ≈ Δt²|ω'||ω_pred − ω'| h (see
-        ``end_velocity_predictor``). Issue 10's twenty-fifth session, reference scene, 15 steps through the landing
-        from t = 0.08 s: max joint gap 7.96 µm with 10, 49.6 µm with 2, 6.58 µm with None; mean max penetration 62.0 /
-        60.0 / 61.7 µm (2 also let the clamped bent fibre of the tests sink before the cap was limited to large
-        systems). Time per step, runs from the same states alternated with None (20 steps): at rest (t = 1.0 s) 1.30 /
-        1.29 against 1.38 / 1.39 s (−6.5 %), the same energy change to three digits, no step raising it, max joint gap
-        7.69 against 7.70 µm; after the landing (t = 0.12 s) 1.74 / 1.68 against 1.86 / 1.92 s (−8 %); through the
-        landing (t = 0.08 s, 15 steps) 6.75 against 7.10 s (−5 %). With 2 it was 1.23 / 1.14 / 1.20 against 1.45 / 1.34
-        s at rest and 6.29 against 6.94 / 7.13 s through the landing, which the joint gaps rule out.
+        sweeps, rose in energy by 1.6e-6 of it in one step, beyond its test's 1e-6). Their twists only predict: the last
+        pass's mid-step state (``end_velocity_predictor`` "previous": the touched fibres at q^i + ½Δt u'), its joint
+        stage's extra displacement and the impulses of ``half_step_projection``; the step keeps the last pass's solves,
+        which start from the previous step's impulses (``warm_start``), not from these. Late promotions extend the cap
+        as in every solve (up to twice it; see ``predictor_extension``). None: ``qp_iterations`` (the former solves).
+        How far the cap can go down is set by the joints: a fibre that moves with u' opens its joints by ≈
+        Δt²|ω'||ω_pred − ω'| h (see ``end_velocity_predictor``). Issue 10's twenty-fifth session, reference scene, 15
+        steps through the landing from t = 0.08 s: max joint gap 7.96 µm with 10, 49.6 µm with 2, 6.58 µm with None;
+        mean max penetration 62.0 / 60.0 / 61.7 µm (2 also let the clamped bent fibre of the tests sink before the cap
+        was limited to large systems). Time per step, runs from the same states alternated with None (20 steps): at rest
+        (t = 1.0 s) 1.30 / 1.29 against 1.38 / 1.39 s (−6.5 %), the same energy change to three digits, no step raising
+        it, max joint gap 7.69 against 7.70 µm; after the landing (t = 0.12 s) 1.74 / 1.68 against 1.86 / 1.92 s (−8 %);
+        through the landing (t = 0.08 s, 15 steps) 6.75 against 7.10 s (−5 %). With 2 it was 1.23 / 1.14 / 1.20 against
+        1.45 / 1.34 s at rest and 6.29 against 6.94 / 7.13 s through the landing, which the joint gaps rule out.
+    predictor_extension : coupled mode, default True: late promotions (``late_promotion_overlap``) extend the capped
+        predictor solves of ``predictor_sweeps`` as they extend every solve; False: that cap is final. On the reference
+        scene the extension is what the predictor costs: capped at 10 it ran 20 sweeps at rest (290 ms of a 1.27 s step,
+        the captured solve of t = 1.003 s replayed; the velocity solve, capped at 30, is not extended there). Issue 10's
+        twenty-sixth session, runs from the same states alternated, False against True: at rest (t = 1.0 s, 12 steps)
+        1.15 against 1.27 s per step (−10 %), mean max penetration 108 against 112 µm; after the landing (t = 0.12 s, 12
+        steps) 1.76 against 1.83 s (−4 %), 39.5 against 35.6 µm; through the landing (t = 0.08 s, 12 steps) 5.37 against
+        5.84 s (−8 %), 55.4 against 52.4 µm, max joint gap 9.85 against 5.45 µm; the same energy change to two digits,
+        no step raising it. (Measured with float64 kernel arrays.) A predictor-only threshold of r (10 ×
+        ``late_promotion_overlap``; tried, not kept): −8 % at rest, through the landing the default's time and
+        penetrations, after it False's 39.5 µm; of 0.3 r: −3 % at rest, otherwise the default's. Not the default: it
+        buys the resting speed with the moving strand's accuracy.
+    kernel_precision : coupled mode, floating-point type of the arrays the coupled kernel's set-up stores and its sweeps
+        read (per contact row its Jacobian rows, their mobility images and the 3×3 Delassus block; per joint the bodies'
+        world inverse inertias and the block-Thomas factors): ``"auto"`` (default) float32 in systems that run the
+        parallel kernels (``parallel_threshold``) and are too large for the sweep budget (as ``predictor_sweeps``),
+        float64 in all others; ``"float64"`` or ``"float32"`` everywhere. The twists, impulses, targets and all
+        arithmetic stay float64. Why: the sweeps are bound by reading those arrays (a row visit reads ≈ 650 bytes of
+        them in float64), and the solves of such systems end at their sweep cap, a few to tens of per cent from their
+        converged answer, far above float32's relative rounding (6e-8). What it costs: the chain solves run with rounded
+        factors, so the joint rows that ``joints_last`` solves exactly keep a residual of that rounding times the
+        velocities (measured: 3e-9 m/s on the reference scene's captured push-out, 1.3e-7 of the push-out speed on the
+        sunk stack of the tests, float64 1e-16 / < 1e-9). Issue 10's twenty-sixth session, reference scene, runs from
+        the same states alternated (12 steps; through the landing 10) against ``"float64"``: at rest (t = 1.0 s) 1.17
+        against 1.29 s per step (−9 %); after the landing (t = 0.12 s) 1.64 against 1.79 s (−8 %), both with the same
+        penetrations, joint gaps and energy change to the printed digits (one step's positions differ by 8e-11 m);
+        through the landing (t = 0.08 s) 4.66 against 5.21 s (−10.5 %), mean max penetration 37.8 against 35.6 µm, max
+        joint gap 4.6 against 5.5 µm (the landing's iterates differ), the same energy change to four digits. The resting
+        4-layer stack of the tests forced to float32 (300 steps, velocity solves to 150 sweeps): sinks 1.25e-4 r against
+        1.20e-4 r, the same largest energy rise, heights within 7.4e-10 m of float64's.
     push_out_sweeps : coupled mode, sweep cap (≥ 1; at most ``qp_iterations``) of the split push-out solve
         (``penetration_recovery``), in systems too large for the sweep budget as above; default None
         (``qp_iterations``). Its twists only move the positions, by the fraction β of the row gaps it recovers in the
@@ -1069,6 +1099,8 @@ class ChainOptions:
     persistent_normals: bool = False
     late_promotion_overlap: float = 0.1
     predictor_sweeps: int | None = 10
+    predictor_extension: bool = True
+    kernel_precision: str = "auto"
     push_out_sweeps: int | None = None
     push_out_warm_start: bool = True
 
@@ -1111,8 +1143,12 @@ class ChainOptions:
             v = getattr(self, name)
             if v is not None and not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1):
                 raise ParameterError(f"{name} must be an integer ≥ 1 or None, got {v!r}")
-        if not isinstance(self.push_out_warm_start, (bool, np.bool_)):
-            raise ParameterError(f"push_out_warm_start must be True or False, got {self.push_out_warm_start!r}")
+        if self.kernel_precision not in ("auto", "float64", "float32"):
+            raise ParameterError("kernel_precision must be 'auto', 'float64' or 'float32', "
+                                 f"got {self.kernel_precision!r}")
+        for name in ("push_out_warm_start", "predictor_extension"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ParameterError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not 0.0 <= self.joint_gap_fraction <= 1.0:
             raise ParameterError(f"joint_gap_fraction must be in [0, 1], got {self.joint_gap_fraction}")
 
@@ -2092,10 +2128,11 @@ class ChainSolver:
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
                   x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False,
-                  tol_scale=1.0, sweep_cap=None):
+                  tol_scale=1.0, sweep_cap=None, extend_cap=True):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
         ``sweep_cap``: the solve's sweep cap when below ``qp_iterations`` in a system too large for the sweep
-        budget (``predictor_sweeps``, ``push_out_sweeps``; None: ``qp_iterations``).
+        budget (``predictor_sweeps``, ``push_out_sweeps``; None: ``qp_iterations``); ``extend_cap`` False: late
+        promotions do not extend that cap (see ``predictor_extension``).
         ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
         Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
         R_mid, u⁻) share the joint rows and the kernel set-up (:func:`~headsim.solvers._kernels.chains_coupled.coupled_setup`)."""
@@ -2138,7 +2175,8 @@ class ChainSolver:
                 joints = (jk, jl, jrk, jrl, jt, jc, jw0, chain_off)
                 mass, inertia = self._writable(model.mass), self._writable(model.inertia)
                 setup = (KC.coupled_setup_parallel if par else KC.coupled_setup)(
-                    *geo, mass, R_mid, inertia, jk, jl, jrk, jrl, jc, chain_off, n_rows)
+                    *geo, mass, R_mid, inertia, jk, jl, jrk, jrl, jc, chain_off, n_rows,
+                    np.zeros(0, self._kernel_storage(model, len(pr) + len(jk))))
                 # domains of the parallel contact sweep (ChainOptions.contact_domains), from the rows from the start
                 body_part = np.zeros(0, np.int64)  # one domain
                 if o.contact_domains > 1:
@@ -2152,8 +2190,11 @@ class ChainSolver:
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
             cap, tol = int(o.qp_iterations), float(o.contact_tolerance)
             n_budget = int(o.sweep_budget) // max(1, len(pr) + len(joints[0]))
+            late = o.late_promotion_overlap * float(model.radius.min()) / dt
             if sweep_cap is not None and n_budget <= cap:  # a system too large for the sweep budget
                 cap = min(cap, int(sweep_cap))
+                if not extend_cap:  # no late promotion extends this cap
+                    late = np.inf
             if budget:  # small systems: run to a tighter stopping rule (see ChainOptions.sweep_budget)
                 self._budgeted = n_budget > cap
                 if n_budget > cap:
@@ -2162,7 +2203,7 @@ class ChainSolver:
                                         float(o.restitution), cap, tol, lam_p,
                                         fr_p, *joints, n_rows, bool(joints_last), body_part, self._momentum,
                                         *screen, int(o.root_sweeps), int(o.root_segments),
-                                        o.late_promotion_overlap * float(model.radius.min()) / dt)
+                                        late)
             if change > tol:  # stopped by the sweep cap, not by the stopping rule
                 self._qp_capped += 1
             self._qp_residual = max(self._qp_residual, float(change))
@@ -2178,6 +2219,16 @@ class ChainSolver:
             u, sw = self._project(rows, order, row_off, bodies, u_minus, targets, model, R_mid, lam)
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
+
+    def _kernel_storage(self, model, n_rows_and_joints):
+        """Floating-point type of the coupled kernel's row and chain arrays for a system of ``model`` with this
+        many rows and joints (``ChainOptions.kernel_precision``)."""
+        o = self.options
+        if o.kernel_precision == "auto":
+            large = (model.n_segments >= o.parallel_threshold
+                     and int(o.sweep_budget) // max(1, n_rows_and_joints) <= int(o.qp_iterations))
+            return np.float32 if large else np.float64
+        return np.float32 if o.kernel_precision == "float32" else np.float64
 
     def _kept_arrays(self, attr, n, alloc, fresh):
         """``alloc(m)``'s arrays with room for n entries, kept across steps in ``self.<attr>`` (as (arrays, m),
@@ -2601,7 +2652,8 @@ class ChainSolver:
                 u_vel = self._contacts(rows, gaps, 0.0, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam,
                                        sweeps_box, x_mid, warm, pass_key=it, u_spring=u_spring,
                                        spring_step=spring_step, joints_last=endvel, budget=endvel and not exact_first,
-                                       sweep_cap=o.predictor_sweeps if it + 1 < o.harmonisation_iterations else None)
+                                       sweep_cap=o.predictor_sweeps if it + 1 < o.harmonisation_iterations else None,
+                                       extend_cap=o.predictor_extension)
                 pass_promoted = self._promoted
                 if endvel:
                     # the step's energy bound (ChainOptions.end_velocity_positions); a small system whose solve met

@@ -481,7 +481,7 @@ def _screen_margin(u_ref, rho):
 
 
 def _coupled_setup_impl(body, partner, normal, lever, partner_lever, mass, R, inertia, joint_k, joint_l, joint_rk,
-                        joint_rl, joint_compliance_inv, chain_off, n_listed_rows):
+                        joint_rl, joint_compliance_inv, chain_off, n_listed_rows, storage):
     """Set-up of :func:`_coupled_iterate_impl` that depends only on the geometry (rows, R, joints), not on
     the targets or the starting impulses: per contact row (the first ``n_listed_rows``; −1: all) the
     Jacobian rows J_A, J_B (nc, 3, 6), their mobility images M⁻¹Jᵀ (nc, 3, 6) and the 3×3 Delassus block
@@ -490,26 +490,28 @@ def _coupled_setup_impl(body, partner, normal, lever, partner_lever, mass, R, in
     are left unset (and untouched by this kernel: the memory of these arrays is only mapped when written),
     the iteration fills them in the order it promotes candidates (:func:`_slot`), not at the candidates'
     indices, whose scattered first writes cost a page fault each (landing drape strand, 1.9 M candidates,
-    25 k promotions: 0.085 s of its 2.2 s serial solve). Returns (JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up);
+    25 k promotions: 0.085 s of its 2.2 s serial solve). ``storage``: an empty array whose dtype (float64 or
+    float32, ``ChainOptions.kernel_precision``) these arrays take; the arithmetic is float64 either way (the
+    iteration reads them into float64 sums). Returns (JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up);
     the velocity solve and the push-out solve of one harmonisation pass share it (each iteration fills the
     candidates' slots from the first)."""
     nc = body.shape[0]
     n_on = nc if n_listed_rows < 0 else min(n_listed_rows, nc)
-    MA = np.empty((nc, 3, 6))  # every entry of a row is written by _contact_rows
-    MB = np.empty((nc, 3, 6))
-    JA = np.empty((nc, 3, 6))
-    JB = np.empty((nc, 3, 6))
-    W = np.empty((nc, 3, 3))
+    MA = np.empty((nc, 3, 6), storage.dtype)  # every entry of a row is written by _contact_rows
+    MB = np.empty((nc, 3, 6), storage.dtype)
+    JA = np.empty((nc, 3, 6), storage.dtype)
+    JB = np.empty((nc, 3, 6), storage.dtype)
+    W = np.empty((nc, 3, 3), storage.dtype)
     for c in prange(n_on):
         Iw = np.empty((3, 3))
         _contact_rows(c, c, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W, Iw)
     nj = joint_k.shape[0]
     nch = chain_off.shape[0] - 1
-    Ik = np.zeros((nj, 3, 3))
-    Il = np.zeros((nj, 3, 3))
-    Dinv = np.zeros((nj, 6, 6))
-    G = np.zeros((nj, 6, 6))
-    Up = np.zeros((nj, 6, 6))
+    Ik = np.zeros((nj, 3, 3), storage.dtype)
+    Il = np.zeros((nj, 3, 3), storage.dtype)
+    Dinv = np.zeros((nj, 6, 6), storage.dtype)
+    G = np.zeros((nj, 6, 6), storage.dtype)
+    Up = np.zeros((nj, 6, 6), storage.dtype)
     for j in prange(nj):
         if joint_k[j] >= 0:
             _inv_inertia_into(R[joint_k[j]], inertia[joint_k[j]], Ik[j])
@@ -1009,7 +1011,7 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
     setup = coupled_setup_parallel if parallel else coupled_setup
     iterate = coupled_iterate_parallel if parallel else coupled_iterate
     pre = setup(body, partner, normal, lever, partner_lever, mass, R, inertia, joint_k, joint_l, joint_rk, joint_rl,
-                joint_compliance_inv, chain_off, n_listed_rows)
+                joint_compliance_inv, chain_off, n_listed_rows, np.zeros(0))
     return iterate(*pre, body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                    restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
                    joint_compliance_inv, joint_w0, chain_off, n_listed_rows, False, body_part, float(momentum),
