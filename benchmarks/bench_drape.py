@@ -529,6 +529,25 @@ landing (penetrations 116 / 46 / 67 µm), left as an option. This benchmark's co
 benchmarks/data/drape_355x100_aniso_t1.0.npz --settle 3 --steps 5 --coupled-only``) on the session's last tree: 1.37 /
 1.35 s per step (1.34 / 1.30 s with ``--set push_out_warm_start=False``; 1.41 / 1.40 s at the session's start). Goal:
 ≈ 6.5–7× off.
+
+Twenty-sixth session (issue 10). The kernel's row order is not the stall: the last pass's velocity solve at t = 1.003 s,
+captured and replayed with its 75 k rows ordered by their contact-graph distance from the sphere (either way), root
+rows first or last, or at random, ends 0.129–0.130 off a 1,000-sweep answer (kinetic metric) after 30 sweeps, as in
+the kernel's order (0.130); 69 % of that error lies on segments 1–5, next to the roots: the 355 roots sit 105 µm apart
+and at rest the nodes 1–3 of neighbouring fibres come within 15–25 µm of each other, and the rows of segments 0–5
+carry 70 % of the normal impulse (2.7 of 3.9e-5 N s after 3,000 sweeps). The predictor solve, capped at 10, runs 20
+sweeps at rest (late promotions extend it; 290 ms replayed, like the 30-sweep velocity solve's 327 ms); without the
+extension (``ChainOptions.predictor_extension=False``, an option) −10 % at rest but +11 % mean penetration after the
+landing. ``ChainOptions.kernel_precision`` (default "auto": float32 for the kernel's stored row and chain arrays on
+this scene, the arithmetic float64): at rest 1.17 against 1.29 s per step, after the landing 1.64 against 1.79 s,
+through it 4.66 against 5.21 s, with the same penetrations and energy to the printed digits at rest and after the
+landing. The coupled set-up no longer allocates small arrays per row and per joint block (bitwise the same arrays):
+≈ −10 % of the set-up. This benchmark's command on the session's last tree: 1.05 / 1.03 s per step (1.16 / 1.31 s
+with ``--set kernel_precision='"float64"'``; 1.26 s at the session's start). Tried and not kept: a larger predictor-only
+promotion threshold (r: −8 % at rest, after the landing as False), capping the push-out at 15 / 10 sweeps (−4 / −8 %
+at rest, −16 / −22 % through the landing, but mean penetration +12 % at rest and +40–50 % after the landing),
+``qp_iterations`` 20 / 15 (−8 / −15 % at rest, +1 / +11 % mean penetration), Numba ``fastmath`` on the iteration (no
+gain), an inner-disc shortcut of the friction polygon test (no gain). Goal: ≈ 5× off.
 """
 
 from __future__ import annotations

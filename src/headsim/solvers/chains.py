@@ -1017,19 +1017,21 @@ class ChainOptions:
         world inverse inertias and the block-Thomas factors): ``"auto"`` (default) float32 in systems that run the
         parallel kernels (``parallel_threshold``) and are too large for the sweep budget (as ``predictor_sweeps``),
         float64 in all others; ``"float64"`` or ``"float32"`` everywhere. The twists, impulses, targets and all
-        arithmetic stay float64. Why: the sweeps are bound by reading those arrays (a row visit reads ≈ 650 bytes of
-        them in float64), and the solves of such systems end at their sweep cap, a few to tens of per cent from their
-        converged answer, far above float32's relative rounding (6e-8). What it costs: the chain solves run with rounded
-        factors, so the joint rows that ``joints_last`` solves exactly keep a residual of that rounding times the
-        velocities (measured: 3e-9 m/s on the reference scene's captured push-out, 1.3e-7 of the push-out speed on the
-        sunk stack of the tests, float64 1e-16 / < 1e-9). Issue 10's twenty-sixth session, reference scene, runs from
-        the same states alternated (12 steps; through the landing 10) against ``"float64"``: at rest (t = 1.0 s) 1.17
-        against 1.29 s per step (−9 %); after the landing (t = 0.12 s) 1.64 against 1.79 s (−8 %), both with the same
-        penetrations, joint gaps and energy change to the printed digits (one step's positions differ by 8e-11 m);
-        through the landing (t = 0.08 s) 4.66 against 5.21 s (−10.5 %), mean max penetration 37.8 against 35.6 µm, max
-        joint gap 4.6 against 5.5 µm (the landing's iterates differ), the same energy change to four digits. The resting
-        4-layer stack of the tests forced to float32 (300 steps, velocity solves to 150 sweeps): sinks 1.25e-4 r against
-        1.20e-4 r, the same largest energy rise, heights within 7.4e-10 m of float64's.
+        arithmetic stay float64. Why: every row visit of a sweep reads ≈ 650 bytes of those arrays in float64 (half in
+        float32), and the solves of such systems end at their sweep cap, a few to tens of per cent from their converged
+        answer, far above float32's relative rounding (6e-8). What it costs: the chain solves run with rounded factors,
+        so the joint rows that ``joints_last`` solves exactly keep a residual of that rounding times the velocities
+        (measured: 6e-9 / 9e-9 m/s after the last pass's velocity / push-out solve of the reference scene at t = 1.003
+        s, captured and replayed, whose 30 sweeps otherwise end with the same promotions, largest bound violation and
+        impulse sum to six digits as float64's; 1.3e-7 of the push-out speed on the sunk stack of the tests; float64
+        1e-16 m/s / 5e-16). Issue 10's twenty-sixth session, reference scene, runs from the same states alternated (12
+        steps; through the landing 10) against ``"float64"``: at rest (t = 1.0 s) 1.17 against 1.29 s per step (−9 %);
+        after the landing (t = 0.12 s) 1.64 against 1.79 s (−8 %), both with the same penetrations, joint gaps and
+        energy change to the printed digits (one step's positions differ by 8e-11 m); through the landing (t = 0.08 s)
+        4.66 against 5.21 s (−10.5 %), mean max penetration 37.8 against 35.6 µm, max joint gap 4.6 against 5.5 µm (the
+        landing's iterates differ), the same energy change to four digits. The resting 4-layer stack of the tests forced
+        to float32 (300 steps, velocity solves to 150 sweeps): sinks 1.25e-4 r against 1.20e-4 r, the same largest
+        energy rise, heights within 7.4e-10 m of float64's.
     push_out_sweeps : coupled mode, sweep cap (≥ 1; at most ``qp_iterations``) of the split push-out solve
         (``penetration_recovery``), in systems too large for the sweep budget as above; default None
         (``qp_iterations``). Its twists only move the positions, by the fraction β of the row gaps it recovers in the
