@@ -2191,7 +2191,7 @@ class ChainSolver:
             _, _, joints, mass, inertia, setup, body_part = ps
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
             cap, tol = int(o.qp_iterations), float(o.contact_tolerance)
-            n_budget = int(o.sweep_budget) // max(1, len(pr) + len(joints[0]))
+            n_budget = self._budget_sweeps(len(pr) + len(joints[0]))
             late = o.late_promotion_overlap * float(model.radius.min()) / dt
             if sweep_cap is not None and n_budget <= cap:  # a system too large for the sweep budget
                 cap = min(cap, int(sweep_cap))
@@ -2222,13 +2222,18 @@ class ChainSolver:
             sweeps_box[0] = max(sweeps_box[0], sw)
         return u
 
+    def _budget_sweeps(self, n_rows_and_joints):
+        """The sweeps ``ChainOptions.sweep_budget`` grants a coupled solve of this many rows and joints; a system
+        is too large for the budget when they are ≤ ``qp_iterations``."""
+        return int(self.options.sweep_budget) // max(1, n_rows_and_joints)
+
     def _kernel_storage(self, model, n_rows_and_joints):
         """Floating-point type of the coupled kernel's row and chain arrays for a system of ``model`` with this
         many rows and joints (``ChainOptions.kernel_precision``)."""
         o = self.options
         if o.kernel_precision == "auto":
             large = (model.n_segments >= o.parallel_threshold
-                     and int(o.sweep_budget) // max(1, n_rows_and_joints) <= int(o.qp_iterations))
+                     and self._budget_sweeps(n_rows_and_joints) <= int(o.qp_iterations))
             return np.float32 if large else np.float64
         return np.float32 if o.kernel_precision == "float32" else np.float64
 

@@ -864,14 +864,30 @@ def project_bodies_batch(bodies, row_off, u_minus, mass, R, inertia, normal, lev
 
 @njit(cache=True)
 def _frame(axis, n):
-    t1 = axis - (axis[0] * n[0] + axis[1] * n[1] + axis[2] * n[2]) * n
-    l1 = np.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
+    """(t₁, t₂) of :func:`_tangents_into` for the axis (3,) as arrays."""
+    T = np.empty((2, 3))
+    _tangents_into(axis[0], axis[1], axis[2], n, T)
+    return T[0], T[1]
+
+
+@njit(cache=True, inline="always")
+def _tangents_into(x0, x1, x2, n, T):
+    """T[0], T[1] ← the friction frame's tangents for the axis (x0, x1, x2) and the unit normal n: t₁ the axis
+    projected onto the contact plane (a fixed helper direction where the axis is along n), t₂ = n × t₁. Writes
+    into T (2, 3), so that the coupled set-up allocates nothing per contact row."""
+    d = x0 * n[0] + x1 * n[1] + x2 * n[2]
+    y0, y1, y2 = x0 - d * n[0], x1 - d * n[1], x2 - d * n[2]
+    l1 = np.sqrt(y0 ** 2 + y1 ** 2 + y2 ** 2)
     if l1 < 1e-9:
-        helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        t1 = helper - (helper[0] * n[0] + helper[1] * n[1] + helper[2] * n[2]) * n
-        l1 = np.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
-    t1 = t1 / l1
-    return t1, _cross(n, t1)
+        x0, x1, x2 = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
+        d = x0 * n[0] + x1 * n[1] + x2 * n[2]
+        y0, y1, y2 = x0 - d * n[0], x1 - d * n[1], x2 - d * n[2]
+        l1 = np.sqrt(y0 ** 2 + y1 ** 2 + y2 ** 2)
+    y0, y1, y2 = y0 / l1, y1 / l1, y2 / l1
+    T[0, 0], T[0, 1], T[0, 2] = y0, y1, y2
+    T[1, 0] = n[1] * y2 - n[2] * y1
+    T[1, 1] = n[2] * y0 - n[0] * y2
+    T[1, 2] = n[0] * y1 - n[1] * y0
 
 
 @njit(cache=True)

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from headsim.solvers._kernels.chains import _inv_inertia_into, _polygon_qp, inv6_into
+from headsim.solvers._kernels.chains import _inv_inertia_into, _polygon_qp, _tangents_into, inv6_into
 from headsim.solvers._kernels.chains_pairs import row_normal_speed
 from headsim.solvers._kernels.twins import serial_and_parallel
 
@@ -212,28 +212,6 @@ def _apply_joint_impulse(u, b, r, dq, j, Iw, mass, sign):
         u[b, 3 + z] += sign * (Iw[j, z, 0] * t0 + Iw[j, z, 1] * t1 + Iw[j, z, 2] * t2)
 
 
-@njit(cache=True, inline="always")
-def _tangents_into(R, a, n, T):
-    """T[0], T[1] ← the friction frame's tangents t₁, t₂ of :func:`headsim.solvers._kernels.chains._frame` for body
-    a's axis R[a, :, 2] and the unit normal n: the same arithmetic (the same bits) without its five small arrays
-    per call (with the set-up's other work arrays taken out of its loops, ≈ 10 % of the set-up's time on the
-    reference scene)."""
-    x0, x1, x2 = R[a, 0, 2], R[a, 1, 2], R[a, 2, 2]
-    d = x0 * n[0] + x1 * n[1] + x2 * n[2]
-    y0, y1, y2 = x0 - d * n[0], x1 - d * n[1], x2 - d * n[2]
-    l1 = np.sqrt(y0 ** 2 + y1 ** 2 + y2 ** 2)
-    if l1 < 1e-9:
-        x0, x1, x2 = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
-        d = x0 * n[0] + x1 * n[1] + x2 * n[2]
-        y0, y1, y2 = x0 - d * n[0], x1 - d * n[1], x2 - d * n[2]
-        l1 = np.sqrt(y0 ** 2 + y1 ** 2 + y2 ** 2)
-    y0, y1, y2 = y0 / l1, y1 / l1, y2 / l1
-    T[0, 0], T[0, 1], T[0, 2] = y0, y1, y2
-    T[1, 0] = n[1] * y2 - n[2] * y1
-    T[1, 1] = n[2] * y0 - n[0] * y2
-    T[1, 2] = n[0] * y1 - n[1] * y0
-
-
 @njit(cache=True)
 def _contact_rows(c, sc, body, partner, normal, lever, partner_lever, mass, R, inertia, JA, JB, MA, MB, W, Iw, T):
     """Jacobian rows (n, t₁, t₂) of contact c on both bodies, their mobility images M⁻¹Jᵀ and the 3×3
@@ -241,7 +219,7 @@ def _contact_rows(c, sc, body, partner, normal, lever, partner_lever, mass, R, i
     Iw (3, 3), T (2, 3): work arrays."""
     a = body[c]
     n = normal[c]
-    _tangents_into(R, a, n, T)
+    _tangents_into(R[a, 0, 2], R[a, 1, 2], R[a, 2, 2], n, T)  # t₁ from body A's axis R[a, :, 2]
     t1 = T[0]
     t2 = T[1]
     for side in range(2):
