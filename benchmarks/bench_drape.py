@@ -551,6 +551,24 @@ gain), an inner-disc shortcut of the friction polygon test (no gain), the root s
 parallel as the main sweep's (they are serial, 20–30 % of a replayed solve's time: −4 to −6 % per step at rest, but
 mean / largest penetration 120 / 168 against 112 / 137 µm: the root rows' visiting order matters at the cap). Goal:
 ≈ 5× off.
+
+Twenty-seventh session (issue 10). **The floor of this step's design**: the same resting start with every contact
+solve capped at one sweep and no root sweeps (``--set qp_iterations=1 --set predictor_sweeps=1 --set
+push_out_sweeps=1 --set root_sweeps=0``; two sweeps per solve ran: a promotion at the cap extends it by one) takes
+0.53 s per step (min 0.47; detection 0.15, joints 0.05, contacts 0.28 s per step), against 1.26 s (min 1.18) with
+the shipped caps in the same run (8 steps each, alternated): the fixed parts alone (detection, the two set-ups, the
+joint stage, the first full sweeps with their candidate tests) are 2.6 × the goal, so no convergence gain of the
+contact iteration can meet 0.2 s per step on 2 cores. (The floor's penetrations at rest: mean / largest 121 / 141
+against 110 / 129 µm.) A profile of 5 resting steps (cProfile): the iteration 0.83 s, the set-ups 0.095 s, the
+joint stage 0.052 s, the pair detection kernel 0.024 s per step; the Python between the kernels is a few per cent.
+**The root packing is not the stall's cause**: the strand built on a 210 µm lattice (3 diameters instead of 1.5,
+``--fibre-spacing 210e-6``; the seed gives no packing), run from its start to t = 1.0 s (29 min), still has its
+deepest overlaps and widest joint gaps next to the roots (the bundle now pinches at segments 3–4 instead of 1–3:
+max joint gap 15.5 µm at fibre 276's joint 3; penetrations 86–190 µm from t = 0.47 s on), every solve still ends at
+its cap, and a resting step takes 0.94 s against 1.26 s (alternated, 8 steps; 57 k rows against 76 k: fewer fibres
+touch near the roots) with penetrations mean / largest 116 / 145 against 110 / 129 µm. The coupled kernel no longer
+collects the restitution's normal-impulse twists when ε = 0 (bitwise the same iterates; the replayed solves of one
+resting step −5 to −11 % on one thread, within the noise on two).
 """
 
 from __future__ import annotations
@@ -599,6 +617,9 @@ def main():
                          "(HelicalSphereGeometry.former(), in contact with itself from the first steps)")
     ap.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
                     help="ChainOptions override (Python literal), e.g. --set joint_gap_fraction=1.0")
+    ap.add_argument("--fibre-spacing", type=float, default=None, metavar="M",
+                    help="lattice spacing of the strand's fibres, m (build_drape_scene's fibre_spacing; default "
+                         "1.5 diameters); a --state must come from a scene of the same spacing (its roots)")
     ap.add_argument("--state", metavar="FILE.npz",
                     help="start from a saved state (drape_states.py) instead of the scene's start")
     ap.add_argument("--save-state", metavar="FILE.npz",
@@ -626,7 +647,8 @@ def main():
     timed = {}
     for coupling in ("coupled",) if args.coupled_only else ("coupled", "per-body"):
         scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
-                                  geometry=geometry, contact_coupling=coupling, **overrides)
+                                  geometry=geometry, contact_coupling=coupling, fibre_spacing=args.fibre_spacing,
+                                  **overrides)
         solver = ChainSolver(scene.options)
         state = load_state(args.state, scene.model) if args.state else scene.state
         t0 = time.perf_counter()

@@ -68,6 +68,16 @@ the table above. Since then (issue 10, nineteenth session, the solver of that se
   kinetic energy at 2.8e-3 of its peak (the one at landing): stable volume FAIL, as at the reduced sizes. Per step
   1.37 s at t = 0.5–1.0 s and 1.05 s at 1.0–1.5 s; see ``bench_drape.py`` (nineteenth session) for the deep
   overlaps next to the roots that this run shows from t ≈ 0.47 s.
+* aniso at full size again, with the solver of the twenty-seventh session, stepped by hand from
+  ``benchmarks/data/drape_355x100_aniso_t1.0.npz`` (1,580 steps, ≈ 1.1 s each): V = 5,947 cm³ at 1.01 s, 10,912 at
+  1.5 s (21.8 × 24.8 × 20.2 cm), 14,938 at 2.0 s (34.8 × 26.1 × 16.4 cm), 16,680 at 2.5 s and 14,117 at 2.58 s
+  (34.1 × 26.5 × 15.6 cm): the strand slides over the sphere's rim (x extent 21 → 34 cm) and its loops keep moving.
+  The volume's range over 0.2 s windows is 7.7–51 % from 1.2 s on (28 % over 2.38–2.58 s) while the kinetic energy
+  falls to 1.3e-7 J (≈ 6e-4 of the landing peak, estimated from the nineteenth session's ratio at 1.5 s): stable
+  volume FAIL by 2.6 s; the creeping loops move with the scales (μ = 0.13) and across them (0.21) on a sphere sized
+  for μ = 0.47 (rim slope 25°). The largest joint gap grows with the load the hanging strand puts on the roots: 7.7
+  µm at 1.0 s, 28.7 at 1.5 s, 34.9 at 2.0 s, 52.7 at 2.58 s, always at joints 1–3 of the same few fibres (238, 260,
+  233, 321, 112) pinched in the root bundle (mean gap there 2–3 µm, elsewhere 0.5–1.5 µm); penetrations 75–125 µm.
 * The three modes to 0.7 s for Table 8.1 at full size (≈ 2.5 h) were not run; the script now prints its progress
   and, per window of steps, the wall time per step, the largest penetration and the capped solves.
 

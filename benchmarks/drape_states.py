@@ -15,6 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+# m: a saved state whose anchored fibres start farther than this from the model's roots belongs to another scene
+# (the root joints of the saved runs stay within microns; fibres of the 1.5 d and 3 d lattices differ by up to mm)
+ROOT_MISMATCH = 1e-4
+
 
 def save_state(path, state) -> Path:
     """Write ``state`` (a ChainState) to ``path`` (.npz); returns the path."""
@@ -49,5 +53,14 @@ def load_state(path, model):
             raise SystemExit(f"{path} holds {n} segments, the scene has {model.n_segments}: use the same "
                              "--fibres and --segments as the run that saved it")
         rotation = Rotation.from_quat(d["quaternion"].astype(np.float64)).as_matrix()
-        return ChainState(d["position"].astype(np.float64), rotation, d["velocity"].astype(np.float64),
+        position = d["position"].astype(np.float64)
+        # the anchored fibres' first segments must start at this model's roots (a state of another scene, e.g.
+        # another fibre spacing, would otherwise load and tear every root joint open in its first step)
+        first = np.asarray(model.segment_offsets[:-1])[np.asarray(model.anchored)]
+        ends = position[first] - model.half_length[first, None] * rotation[first, :, 2]
+        off_root = np.linalg.norm(ends - np.asarray(model.root_point)[np.asarray(model.anchored)], axis=1)
+        if off_root.size and off_root.max() > ROOT_MISMATCH:
+            raise SystemExit(f"{path}: its fibres start up to {off_root.max() * 1e3:.2g} mm from this scene's roots: "
+                             "it was saved from another scene (use the same --fibre-spacing and --geometry)")
+        return ChainState(position, rotation, d["velocity"].astype(np.float64),
                           d["angular_velocity"].astype(np.float64), float(d["time"]))

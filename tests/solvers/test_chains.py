@@ -1140,6 +1140,37 @@ def test_root_sweeps_change_the_path_not_the_fixed_point():
     assert np.array_equal(run(16, 40, 0.0, root_segments=0)[0], run(0, 40, 0.0)[0])
 
 
+@pytest.mark.parametrize("momentum", [0.0, 1.0])
+@pytest.mark.parametrize("warm", [False, True])
+def test_coupled_kernel_restitution_is_newtons_law(momentum, warm):
+    """Sobottka eq. 8.28 / 8.30: the coupled kernel's result with restitution ε is u_e = (1 + ε) u⁺ − ε u⁻.
+    A free segment lying flat (2 mm along x) falls at 1 m/s onto a plane y = 0, touching it with both ends
+    (two frictionless rows, levers (±h, −r, 0)): the projection u⁺ stops it (both rows active with equal
+    impulses, no spin), so it must leave at +ε · 1 m/s along the normal, without spin. The normal-impulse
+    twists that ε scales are collected in every place the kernel changes a normal impulse: the warm start
+    (``warm``: starting from the converged impulses), the row visits and the Nesterov extrapolation
+    (``momentum``)."""
+    from headsim.solvers._kernels import chains_coupled as KC
+
+    nodes = np.array([[0.0, 0.0, 0.0], [2e-3, 0.0, 0.0]])
+    model, state = chain_model_from_polylines(nodes, [0, 2], radius=R_FIBRE, anchored=False)
+    h = model.half_length[0]
+    normal = np.array([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    lever = np.array([[h, -R_FIBRE, 0.0], [-h, -R_FIBRE, 0.0]])
+    eps = 0.4
+    u_minus = np.array([[0.0, -1.0, 0.0, 0.0, 0.0, 0.0]])
+    lam = np.full(2, 0.5 * model.mass[0] * 1.0) if warm else np.zeros(2)  # the converged impulses (N s)
+    u = u_minus.copy()
+    e3 = np.zeros((0, 3))
+    KC.project_coupled(np.zeros(2, np.int64), np.full(2, -1, np.int64), normal, lever, np.zeros((2, 3)),
+                       np.zeros(2), u, model.mass.copy(), state.rotation.copy(), model.inertia.copy(), np.zeros(0),
+                       np.zeros(0), eps, 10_000, 1e-14, lam, np.zeros((2, 2)), np.zeros(0, np.int64),
+                       np.zeros(0, np.int64), e3, e3, e3, np.zeros((0, 3, 3)), e3, np.zeros(1, np.int64),
+                       momentum=momentum)
+    np.testing.assert_allclose(lam, 0.5 * model.mass[0], rtol=1e-9)
+    np.testing.assert_allclose(u[0], [0.0, eps, 0.0, 0.0, 0.0, 0.0], atol=1e-9)
+
+
 def test_fibre_domains_are_balanced_and_cut_few_rows():
     """The bisection behind ChainOptions.contact_domains on a ring of 40 fibres (rows only between
     neighbours, 10 rows per neighbour pair) plus an isolated pair and obstacle rows: every domain gets

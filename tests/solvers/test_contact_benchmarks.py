@@ -60,7 +60,8 @@ def test_root_solve_experiment_runs():
 def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
     """``benchmarks/bench_drape.py --save-state`` writes the state reached after its warm-up and settle steps, and
     ``--state`` starts a run from it (at its time); ``drape_states.load_state`` refuses a file made for another
-    number of segments, and a loaded state is the saved one to float32 rounding with orthonormal rotations."""
+    number of segments or another strand (its roots elsewhere: ``--fibre-spacing``), and a loaded state is the
+    saved one to float32 rounding with orthonormal rotations."""
     saved = tmp_path / "state.npz"
     common = [sys.executable, str(ROOT / "benchmarks" / "bench_drape.py"), "--fibres", "4", "--segments", "10",
               "--steps", "1", "--coupled-only"]
@@ -97,3 +98,10 @@ def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
         load_state(saved, other.model)
     with pytest.raises(SystemExit, match="no saved state"):
         load_state(tmp_path / "missing.npz", other.model)
+    # a state of the same size from a strand of another fibre spacing: its roots are not this scene's
+    wide = build_drape_scene("sphere-helical", "aniso", n_fibres=4, segments=10, fibre_spacing=210e-6)
+    with pytest.raises(SystemExit, match="from this scene's roots"):
+        load_state(saved, wide.model)
+    out = subprocess.run(common + ["--settle", "0", "--state", str(saved), "--fibre-spacing", "210e-6"],
+                         capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode != 0 and "from this scene's roots" in out.stderr, out.stderr[-2000:]

@@ -99,7 +99,7 @@ class HelicalSphereGeometry:
     Outcome (``benchmarks/bench_drape_volume.py``, reduced scenes): with the default straight rest
     shape the strand still slides over the rim and hangs down the sphere's side; the boxes at 0.7 s are
     2–5 times the seed's; none < iso, aniso holds, iso ≈ aniso does not; the isotropic run comes to rest
-    (stable volume), the anisotropic one does not by 1.5 s.
+    (stable volume), the anisotropic one does not by 1.5 s (nor, at full size, by 2.6 s: its loops keep sliding).
     """
 
     helix_radius: float

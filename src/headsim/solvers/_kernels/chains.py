@@ -746,18 +746,11 @@ def project_body(u_minus, mass, Iwi, normal, lever, axis, target, mu_cos, mu_sin
                 bound[a] = max(0.0, mass * (normal[a, 0] * dv[0] + normal[a, 1] * dv[1] + normal[a, 2] * dv[2]))
         T = np.zeros((nc, 2, 6))
         MiT = np.zeros((nc, 2, 6))
+        Tf = np.empty((2, 3))
         for a in range(nc):
-            n = normal[a]
-            t1 = axis - (axis[0] * n[0] + axis[1] * n[1] + axis[2] * n[2]) * n
-            l1 = np.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
-            if l1 < 1e-9:
-                helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-                t1 = helper - (helper[0] * n[0] + helper[1] * n[1] + helper[2] * n[2]) * n
-                l1 = np.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
-            t1 = t1 / l1
-            t2 = _cross(n, t1)
+            _tangents_into(axis[0], axis[1], axis[2], normal[a], Tf)
             for k in range(2):
-                t = t1 if k == 0 else t2
+                t = Tf[k]
                 rt = _cross(lever[a], t)
                 for c in range(3):
                     T[a, k, c] = t[c]

@@ -358,13 +358,12 @@ def _extrapolate_rows(listed, lo, cnt, beta, lam, lam_prev, lam_start, fr, u, du
         b = partner[c]
         sc = _slot(c, n0, pslot)
         for q in range(6):
-            du = MA[sc, 0, q] * dl
-            u[a, q] += du + MA[sc, 1, q] * dx + MA[sc, 2, q] * dy
-            dun[a, q] += du
-            if b >= 0:
-                du = MB[sc, 0, q] * dl
-                u[b, q] -= du + MB[sc, 1, q] * dx + MB[sc, 2, q] * dy
-                dun[b, q] -= du
+            u[a, q] += MA[sc, 0, q] * dl + MA[sc, 1, q] * dx + MA[sc, 2, q] * dy
+        if b >= 0:
+            for q in range(6):
+                u[b, q] -= MB[sc, 0, q] * dl + MB[sc, 1, q] * dx + MB[sc, 2, q] * dy
+        if dun.shape[0] > 0:
+            _add_normal_twists(dun, a, b, sc, dl, MA, MB)
         lam[c] = y
         fr[c, 0] += dx
         fr[c, 1] += dy
@@ -382,6 +381,17 @@ def _row_speed(JA, JB, sc, k, a, b, u):
 
 
 @njit(cache=True, inline="always")
+def _add_normal_twists(dun, a, b, sc, dl, MA, MB):
+    """Add a normal impulse change dl (N s) of contact slot ``sc`` (bodies a, b; b = −1: obstacle) to the
+    normal-impulse twists dun (S, 6) that the restitution ε scales (kept only when ε > 0: an empty dun)."""
+    for z in range(6):
+        dun[a, z] += MA[sc, 0, z] * dl
+    if b >= 0:
+        for z in range(6):
+            dun[b, z] -= MB[sc, 0, z] * dl
+
+
+@njit(cache=True, inline="always")
 def _set_normal_impulse(c, sc, a, b, new, vr, lam, u, dun, MA, MB, W):
     """Give contact c (slot ``sc``, bodies a, b) the normal impulse ``new`` (N s): move the twists u (and the
     normal-impulse twists dun of the restitution) and the row velocities vr (3,) by its change; returns the
@@ -391,10 +401,11 @@ def _set_normal_impulse(c, sc, a, b, new, vr, lam, u, dun, MA, MB, W):
     if dl != 0.0:
         for z in range(6):
             u[a, z] += MA[sc, 0, z] * dl
-            dun[a, z] += MA[sc, 0, z] * dl
-            if b >= 0:
+        if b >= 0:
+            for z in range(6):
                 u[b, z] -= MB[sc, 0, z] * dl
-                dun[b, z] -= MB[sc, 0, z] * dl
+        if dun.shape[0] > 0:
+            _add_normal_twists(dun, a, b, sc, dl, MA, MB)
         for k in range(3):
             vr[k] += W[sc, k, 0] * dl
         ch = abs(dl) * W[sc, 0, 0]
@@ -425,7 +436,8 @@ def _solve_friction(c, sc, a, b, vr, lam, fr, u, MA, MB, W, mu_cos, mu_sin, m, p
     if dx != 0.0 or dy != 0.0:
         for z in range(6):
             u[a, z] += MA[sc, 1, z] * dx + MA[sc, 2, z] * dy
-            if b >= 0:
+        if b >= 0:
+            for z in range(6):
                 u[b, z] -= MB[sc, 1, z] * dx + MB[sc, 2, z] * dy
         ch = np.sqrt(dx * dx * Bl[0, 0] + dy * dy * Bl[1, 1])
     fr[c, 0] = nx
@@ -639,7 +651,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     chain_worst = np.zeros(nch)
     lam = lam_out  # iterated in place (on exit: the solution)
     fr = fr_out
-    dun = np.zeros(u.shape)
+    dun = np.zeros((u.shape[0] if restitution > 0.0 else 0, 6))  # the restitution's normal twists (ε > 0 only)
     if m < 3:
         for c in range(nc):
             fr[c, 0] = 0.0
@@ -658,13 +670,12 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
         a = body[c]
         b = partner[c]
         for z in range(6):
-            du = MA[c, 0, z] * lam[c]
-            u[a, z] += du + MA[c, 1, z] * fr[c, 0] + MA[c, 2, z] * fr[c, 1]
-            dun[a, z] += du
-            if b >= 0:
-                du = MB[c, 0, z] * lam[c]
-                u[b, z] -= du + MB[c, 1, z] * fr[c, 0] + MB[c, 2, z] * fr[c, 1]
-                dun[b, z] -= du
+            u[a, z] += MA[c, 0, z] * lam[c] + MA[c, 1, z] * fr[c, 0] + MA[c, 2, z] * fr[c, 1]
+        if b >= 0:
+            for z in range(6):
+                u[b, z] -= MB[c, 0, z] * lam[c] + MB[c, 1, z] * fr[c, 0] + MB[c, 2, z] * fr[c, 1]
+        if dun.shape[0] > 0:
+            _add_normal_twists(dun, a, b, c, lam[c], MA, MB)
     Iw1 = np.empty((3, 3))
     T1 = np.empty((2, 3))
     promoted = 0
