@@ -552,9 +552,9 @@ parallel as the main sweep's (they are serial, 20–30 % of a replayed solve's t
 mean / largest penetration 120 / 168 against 112 / 137 µm: the root rows' visiting order matters at the cap). Goal:
 ≈ 5× off.
 
-Twenty-seventh session (issue 10). **The floor of this step's design**: the same resting start with every contact
-solve capped at one sweep and no root sweeps (``--set qp_iterations=1 --set predictor_sweeps=1 --set
-push_out_sweeps=1 --set root_sweeps=0``; two sweeps per solve ran: a promotion at the cap extends it by one) takes
+Twenty-seventh session (issue 10). **The floor of this step's design** (``--floor``, printed after the timed run):
+the same resting start with every contact solve capped at one sweep and no root sweeps (``FLOOR_OPTIONS``; two
+sweeps per solve ran: a promotion at the cap extends it by one) takes
 0.53 s per step (min 0.47; detection 0.15, joints 0.05, contacts 0.28 s per step), against 1.26 s (min 1.18) with
 the shipped caps in the same run (8 steps each, alternated): the fixed parts alone (detection, the two set-ups, the
 joint stage, the first full sweeps with their candidate tests) are 2.6 × the goal, so no convergence gain of the
@@ -568,7 +568,10 @@ max joint gap 15.5 µm at fibre 276's joint 3; penetrations 86–190 µm from t 
 its cap, and a resting step takes 0.94 s against 1.26 s (alternated, 8 steps; 57 k rows against 76 k: fewer fibres
 touch near the roots) with penetrations mean / largest 116 / 145 against 110 / 129 µm. The coupled kernel no longer
 collects the restitution's normal-impulse twists when ε = 0 (bitwise the same iterates; the replayed solves of one
-resting step −5 to −11 % on one thread, within the noise on two).
+resting step −5 to −11 % on one thread, within the noise on two). This benchmark's command with ``--floor`` on the
+session's last tree: 1.23 s per step, the floor 0.53 s (0.43 of it); without it, alternated with the session's start
+tree (4923f66, a worktree): 1.27 / 1.27 against 1.29 / 1.46 s per step. The machine ran ≈ 20 % slower than in the
+previous session, where the start tree gave 1.03–1.05 s per step.
 """
 
 from __future__ import annotations
@@ -576,8 +579,13 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
+
+
+# ChainOptions of --floor: every contact solve capped at one sweep (a promotion at the cap may add one), no root sweeps
+FLOOR_OPTIONS = {"qp_iterations": 1, "predictor_sweeps": 1, "push_out_sweeps": 1, "root_sweeps": 0}
 
 
 def _time(solver, scene, state, steps):
@@ -620,6 +628,10 @@ def main():
     ap.add_argument("--fibre-spacing", type=float, default=None, metavar="M",
                     help="lattice spacing of the strand's fibres, m (build_drape_scene's fibre_spacing; default "
                          "1.5 diameters); a --state must come from a scene of the same spacing (its roots)")
+    ap.add_argument("--floor", action="store_true",
+                    help="also time the coupled step from the same state with every contact solve capped at one "
+                         "sweep and no root sweeps (FLOOR_OPTIONS): what the step costs without its iteration (a system "
+                         "small enough for ChainOptions.sweep_budget still runs its budget in the last pass)")
     ap.add_argument("--state", metavar="FILE.npz",
                     help="start from a saved state (drape_states.py) instead of the scene's start")
     ap.add_argument("--save-state", metavar="FILE.npz",
@@ -669,6 +681,14 @@ def main():
               f"cap {nc['qp_capped']:.1f}")
         print(f"[{coupling}] batched: {wall:.4f} s/step wall, {cpu:.4f} s/step CPU; phases (s/step): "
               + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in phases.items()))
+        if args.floor and coupling == "coupled":
+            floor = ChainSolver(replace(scene.options, **FLOOR_OPTIONS))
+            fstate, _, _, _, _ = _time(floor, scene, state, 2)  # its own warm-up from the timed run's start
+            _, fw, fc, fph, fnc = _time(floor, scene, fstate, args.steps)
+            print(f"[floor] one sweep per contact solve ({', '.join(f'{k}={v}' for k, v in FLOOR_OPTIONS.items())}): "
+                  f"{fw:.4f} s/step wall, {fc:.4f} s/step CPU = {fw / wall:.2f} of the step above; phases (s/step): "
+                  + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in fph.items())
+                  + f"; max penetration {fnc['max_penetration']:.3e} m")
         if coupling == "per-body":
             loop = ChainSolver(scene.options, fibre_loop=True)
             loop._bvh = None

@@ -59,9 +59,9 @@ def test_root_solve_experiment_runs():
 
 def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
     """``benchmarks/bench_drape.py --save-state`` writes the state reached after its warm-up and settle steps, and
-    ``--state`` starts a run from it (at its time); ``drape_states.load_state`` refuses a file made for another
-    number of segments or another strand (its roots elsewhere: ``--fibre-spacing``), and a loaded state is the
-    saved one to float32 rounding with orthonormal rotations."""
+    ``--state`` starts a run from it (at its time; ``--floor`` adds the one-sweep run); ``drape_states.load_state``
+    refuses a file made for another number of segments or another strand (its roots elsewhere:
+    ``--fibre-spacing``), and a loaded state is the saved one to float32 rounding with orthonormal rotations."""
     saved = tmp_path / "state.npz"
     common = [sys.executable, str(ROOT / "benchmarks" / "bench_drape.py"), "--fibres", "4", "--segments", "10",
               "--steps", "1", "--coupled-only"]
@@ -69,9 +69,11 @@ def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
                          timeout=600, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-2000:]
     assert re.search(r"state at t = 0\.005 s saved to", out.stdout), out.stdout  # 2 warm-up + 3 settle steps
-    out = subprocess.run(common + ["--settle", "0", "--state", str(saved)], capture_output=True, text=True,
+    out = subprocess.run(common + ["--settle", "0", "--state", str(saved), "--floor"], capture_output=True, text=True,
                          timeout=600, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-2000:]
+    assert re.search(r"^\[floor\] one sweep per contact solve \(qp_iterations=1, .*\): [\d.]+ s/step wall", out.stdout,
+                     re.M), out.stdout
     # the time printed is the one before the timed step: the saved 5 ms + 2 warm-up steps
     assert re.search(r"40 segments, t = 0\.007 s", out.stdout), out.stdout
     out = subprocess.run(common + ["--settle", "0", "--save-state", str(tmp_path / "no" / "state.npz")],
