@@ -558,8 +558,12 @@ sweeps per solve ran: a promotion at the cap extends it by one) takes
 0.53 s per step (min 0.47; detection 0.15, joints 0.05, contacts 0.28 s per step), against 1.26 s (min 1.18) with
 the shipped caps in the same run (8 steps each, alternated): the fixed parts alone (detection, the two set-ups, the
 joint stage, the first full sweeps with their candidate tests) are 2.6 × the goal, so no convergence gain of the
-contact iteration can meet 0.2 s per step on 2 cores. (The floor's penetrations at rest: mean / largest 121 / 141
-against 110 / 129 µm.) A profile of 5 resting steps (cProfile): the iteration 0.83 s, the set-ups 0.095 s, the
+contact iteration can meet 0.2 s per step on 2 cores. The floor's ``StepStats`` penetrations at rest are those of the
+shipped caps (100 steps each, alternated, from the saved state: mean / largest 111.4 / 157.8 against 110.9 / 159.0 µm;
+the total energy falls in every step of both), but that largest overlap is the pinched root bundle's: the end state
+of the floor run has 9,929 fibre overlaps above 10 µm away from the roots (segments ≥ 5) against 192 (99th
+percentile 57.7 against 15.1 µm, largest 69.8 against 34.7 µm). So the sweeps are not wasted at rest; the benchmark
+now prints these counts for the end state of each run (``overlap_summary``). A profile of 5 resting steps (cProfile): the iteration 0.83 s, the set-ups 0.095 s, the
 joint stage 0.052 s, the pair detection kernel 0.024 s per step; the Python between the kernels is a few per cent.
 **The root packing is not the stall's cause**: the strand built on a 210 µm lattice (3 diameters instead of 1.5,
 ``--fibre-spacing 210e-6``; the seed gives no packing), run from its start to t = 1.0 s (29 min), still has its
@@ -586,6 +590,35 @@ import numpy as np
 
 # ChainOptions of --floor: every contact solve capped at one sweep (a promotion at the cap may add one), no root sweeps
 FLOOR_OPTIONS = {"qp_iterations": 1, "predictor_sweeps": 1, "push_out_sweeps": 1, "root_sweeps": 0}
+
+
+def overlap_summary(scene, state, root_segments: int = 5) -> str:
+    """The fibre–fibre overlaps (r_a + r_b − centre-line distance) of ``state``, next to the roots (either segment
+    within ``root_segments`` of its root) and elsewhere: how many exceed 1 and 10 µm, their 99th percentile and
+    largest. ``StepStats.max_penetration`` is the largest overlap alone, which the pinched root bundle sets at
+    rest; these counts show the rest of the strand (with the contact solves cut to one sweep it hides 50 × more
+    overlaps above 10 µm away from the roots behind the same largest one, twenty-seventh session). An overlap here
+    is at most r_a + r_b (a pair that passed through reads as its distance on the far side); ``max_penetration``
+    also counts the depth of a row whose normal the solver holds (``ChainOptions.persistent_normals``)."""
+    from headsim.collide.fibre_bvh import fibre_self_contacts
+    from headsim.collide.fibres import FibreSet
+    from headsim.solvers.chains import polylines_from_state
+
+    P = polylines_from_state(scene.model, state)
+    F, n1 = P.shape[0], P.shape[1]
+    fc = fibre_self_contacts(FibreSet(P.reshape(-1, 3), np.arange(F + 1) * n1, scene.model.radius))
+    fibre = ~fc.obstacle
+    depth = fc.depth[fibre]
+    root = np.minimum(fc.segment_a[fibre] % (n1 - 1), fc.segment_b[fibre] % (n1 - 1)) < root_segments
+
+    def summary(d):
+        if not len(d):
+            return "none"
+        return (f"{int((d > 1e-6).sum())} > 1 µm, {int((d > 1e-5).sum())} > 10 µm, 99 % {np.quantile(d, 0.99) * 1e6:.1f} "
+                f"µm, largest {d.max() * 1e6:.1f} µm")
+
+    return (f"fibre overlaps at the end: next to the roots (segments < {root_segments}) {summary(depth[root])}; "
+            f"elsewhere {summary(depth[~root])}")
 
 
 def _time(solver, scene, state, steps):
@@ -681,14 +714,17 @@ def main():
               f"cap {nc['qp_capped']:.1f}")
         print(f"[{coupling}] batched: {wall:.4f} s/step wall, {cpu:.4f} s/step CPU; phases (s/step): "
               + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in phases.items()))
+        if coupling == "coupled":
+            print(f"[{coupling}] {overlap_summary(scene, state_b)}")
         if args.floor and coupling == "coupled":
             floor = ChainSolver(replace(scene.options, **FLOOR_OPTIONS))
             fstate, _, _, _, _ = _time(floor, scene, state, 2)  # its own warm-up from the timed run's start
-            _, fw, fc, fph, fnc = _time(floor, scene, fstate, args.steps)
+            fend, fw, fc, fph, fnc = _time(floor, scene, fstate, args.steps)
             print(f"[floor] one sweep per contact solve ({', '.join(f'{k}={v}' for k, v in FLOOR_OPTIONS.items())}): "
                   f"{fw:.4f} s/step wall, {fc:.4f} s/step CPU = {fw / wall:.2f} of the step above; phases (s/step): "
                   + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in fph.items())
                   + f"; max penetration {fnc['max_penetration']:.3e} m")
+            print(f"[floor] {overlap_summary(scene, fend)}")
         if coupling == "per-body":
             loop = ChainSolver(scene.options, fibre_loop=True)
             loop._bvh = None

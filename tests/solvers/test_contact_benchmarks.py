@@ -74,6 +74,9 @@ def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     assert re.search(r"^\[floor\] one sweep per contact solve \(qp_iterations=1, .*\): [\d.]+ s/step wall", out.stdout,
                      re.M), out.stdout
+    for run in ("coupled", "floor"):  # the end states' overlap counts (none on this strand: "none" or counts)
+        assert re.search(rf"^\[{run}\] fibre overlaps at the end: next to the roots \(segments < 5\) (none|\d+ > 1 µm"
+                         rf".*); elsewhere (none|\d+ > 1 µm.*)$", out.stdout, re.M), out.stdout
     # the time printed is the one before the timed step: the saved 5 ms + 2 warm-up steps
     assert re.search(r"40 segments, t = 0\.007 s", out.stdout), out.stdout
     out = subprocess.run(common + ["--settle", "0", "--save-state", str(tmp_path / "no" / "state.npz")],
