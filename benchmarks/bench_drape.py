@@ -563,7 +563,10 @@ shipped caps (100 steps each, alternated, from the saved state: mean / largest 1
 the total energy falls in every step of both), but that largest overlap is the pinched root bundle's: the end state
 of the floor run has 9,929 fibre overlaps above 10 µm away from the roots (segments ≥ 5) against 192 (99th
 percentile 57.7 against 15.1 µm, largest 69.8 against 34.7 µm). So the sweeps are not wasted at rest; the benchmark
-now prints these counts for the end state of each run (``overlap_summary``). A profile of 5 resting steps (cProfile): the iteration 0.83 s, the set-ups 0.095 s, the
+now prints these counts for the end state of each run (``overlap_summary``). The twenty-sixth session's float32 kernel
+storage passes this finer check: after this command with ``--steps 20``, 293 overlaps above 10 µm away from the roots
+(99th percentile 18.4 µm, largest 60.3 µm) against 277 (17.6, 60.1 µm) with ``--set kernel_precision='"float64"'``,
+1,145 against 1,125 next to them; 1.10 against 1.31 s per step. A profile of 5 resting steps (cProfile): the iteration 0.83 s, the set-ups 0.095 s, the
 joint stage 0.052 s, the pair detection kernel 0.024 s per step; the Python between the kernels is a few per cent.
 **The root packing is not the stall's cause**: the strand built on a 210 µm lattice (3 diameters instead of 1.5,
 ``--fibre-spacing 210e-6``; the seed gives no packing), run from its start to t = 1.0 s (29 min), still has its
