@@ -630,6 +630,11 @@ def overlap_summary(scene, state, root_segments: int = 5) -> str:
             f"elsewhere {summary(depth[~root])}")
 
 
+def _per_step(phases, steps) -> str:
+    """The phase times summed over ``steps`` steps (``_time``) as "name seconds-per-step, …"."""
+    return ", ".join(f"{k} {v / steps:.4f}" for k, v in phases.items())
+
+
 def _time(solver, scene, state, steps):
     if steps <= 0:
         return state, 0.0, 0.0, {}, {}
@@ -722,24 +727,24 @@ def main():
               f"Gauss–Seidel sweeps (largest solve) {nc['qp_sweeps']:.0f}, solves per step ending at the sweep "
               f"cap {nc['qp_capped']:.1f}")
         print(f"[{coupling}] batched: {wall:.4f} s/step wall, {cpu:.4f} s/step CPU; phases (s/step): "
-              + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in phases.items()))
+              + _per_step(phases, args.steps))
         if coupling == "coupled":
             print(f"[{coupling}] {overlap_summary(scene, state_b)}")
-        if args.floor and coupling == "coupled":
-            floor = ChainSolver(replace(scene.options, **FLOOR_OPTIONS))
-            fstate, _, _, _, _ = _time(floor, scene, state, 2)  # its own warm-up from the timed run's start
-            fend, fw, fc, fph, fnc = _time(floor, scene, fstate, args.steps)
-            print(f"[floor] one sweep per contact solve ({', '.join(f'{k}={v}' for k, v in FLOOR_OPTIONS.items())}): "
-                  f"{fw:.4f} s/step wall, {fc:.4f} s/step CPU = {fw / wall:.2f} of the step above; phases (s/step): "
-                  + ", ".join(f"{k} {v / args.steps:.4f}" for k, v in fph.items())
-                  + f"; max penetration {fnc['max_penetration']:.3e} m")
-            print(f"[floor] {overlap_summary(scene, fend)}")
+            if args.floor:
+                floor = ChainSolver(replace(scene.options, **FLOOR_OPTIONS))
+                fstate, _, _, _, _ = _time(floor, scene, state, 2)  # its own warm-up from the timed run's start
+                fend, fw, fc, fph, fnc = _time(floor, scene, fstate, args.steps)
+                print(f"[floor] one sweep per contact solve "
+                      f"({', '.join(f'{k}={v}' for k, v in FLOOR_OPTIONS.items())}): {fw:.4f} s/step wall, "
+                      f"{fc:.4f} s/step CPU = {fw / wall:.2f} of the step above; phases (s/step): "
+                      + _per_step(fph, args.steps) + f"; max penetration {fnc['max_penetration']:.3e} m")
+                print(f"[floor] {overlap_summary(scene, fend)}")
         if coupling == "per-body":
             loop = ChainSolver(scene.options, fibre_loop=True)
             loop._bvh = None
             _, lw, lc, lph, _ = _time(loop, scene, state, args.loop_steps)
             print(f"[{coupling}] one fibre at a time: {lw:.4f} s/step wall, {lc:.4f} s/step CPU; phases (s/step): "
-                  + ", ".join(f"{k} {v / args.loop_steps:.4f}" for k, v in lph.items()))
+                  + _per_step(lph, args.loop_steps))
             print(f"[{coupling}] speed-up batched vs loop: {lw / wall:.1f}x wall, {lc / cpu:.1f}x CPU")
             cw, cc = timed["coupled"]
             print(f"[coupled] time per step / per-body loop's: {cw / lw:.2f} wall, {cc / lc:.2f} CPU "

@@ -56,9 +56,10 @@ def load_state(path, model):
         position = d["position"].astype(np.float64)
         # the anchored fibres' first segments must start at this model's roots (a state of another scene, e.g.
         # another fibre spacing, would otherwise load and tear every root joint open in its first step)
-        first = np.asarray(model.segment_offsets[:-1])[np.asarray(model.anchored)]
+        anchored = np.asarray(model.anchored)
+        first = np.asarray(model.segment_offsets[:-1])[anchored]
         ends = position[first] - model.half_length[first, None] * rotation[first, :, 2]
-        off_root = np.linalg.norm(ends - np.asarray(model.root_point)[np.asarray(model.anchored)], axis=1)
+        off_root = np.linalg.norm(ends - np.asarray(model.root_point)[anchored], axis=1)
         if off_root.size and off_root.max() > ROOT_MISMATCH:
             raise SystemExit(f"{path}: its fibres start up to {off_root.max() * 1e3:.2g} mm from this scene's roots: "
                              "it was saved from another scene (use the same --fibre-spacing and --geometry)")
