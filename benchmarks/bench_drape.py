@@ -692,6 +692,7 @@ def main():
 
     from drape_states import load_state, save_state
 
+    from headsim.errors import ParameterError
     from headsim.hair.drape import HelicalSphereGeometry, build_drape_scene
     from headsim.solvers.chains import ChainSolver
 
@@ -705,9 +706,12 @@ def main():
     print(f"load average {os.getloadavg()}, numba threads {numba.get_num_threads()}")
     timed = {}
     for coupling in ("coupled",) if args.coupled_only else ("coupled", "per-body"):
-        scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
-                                  geometry=geometry, contact_coupling=coupling, fibre_spacing=args.fibre_spacing,
-                                  **overrides)
+        try:  # impossible --fibre-spacing or --set values: a usage error (exit 2), not a traceback
+            scene = build_drape_scene("sphere-helical", args.friction, n_fibres=args.fibres, segments=args.segments,
+                                      geometry=geometry, contact_coupling=coupling, fibre_spacing=args.fibre_spacing,
+                                      **overrides)
+        except ParameterError as e:
+            ap.error(str(e))
         solver = ChainSolver(scene.options)
         state = load_state(args.state, scene.model) if args.state else scene.state
         t0 = time.perf_counter()

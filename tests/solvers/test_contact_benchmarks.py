@@ -110,3 +110,7 @@ def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
     out = subprocess.run(common + ["--settle", "0", "--state", str(saved), "--fibre-spacing", "210e-6"],
                          capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert out.returncode != 0 and "from this scene's roots" in out.stderr, out.stderr[-2000:]
+    out = subprocess.run(common + ["--settle", "0", "--fibre-spacing", "50e-6"], capture_output=True, text=True,
+                         timeout=600, cwd=ROOT)  # closer than a diameter: a usage error, nothing run
+    assert out.returncode == 2 and "fibre_spacing must exceed the fibre diameter" in out.stderr, out.stderr[-2000:]
+    assert "warm-up" not in out.stdout
