@@ -1011,7 +1011,14 @@ class ChainOptions:
         no step raising it. (Measured with float64 kernel arrays.) A predictor-only threshold of r (10 ×
         ``late_promotion_overlap``; tried, not kept): −8 % at rest, through the landing the default's time and
         penetrations, after it False's 39.5 µm; of 0.3 r: −3 % at rest, otherwise the default's. Not the default: it
-        buys the resting speed with the moving strand's accuracy.
+        buys the resting speed with the moving strand's accuracy. Re-checked in the twenty-eighth session with the
+        end state's fibre overlaps (``benchmarks/bench_drape.py``'s ``overlap_summary``; float32 kernel arrays),
+        False against True, steps alternated from the same states: through the landing (t = 0.080 → 0.120 s, 40
+        steps) 4.49 against 4.59 s per step, overlaps away from the roots the same (1,183 against 1,222 > 10 µm,
+        99 % 18.5 against 18.7 µm), but max joint gap 43.8 against 7.62 µm; after it (t = 0.120 s, 15 steps) 1.77
+        against 1.92 s, 560 against 593 overlaps > 10 µm, largest 36.0 against 24.3 µm, max joint gap 7.64 both; at
+        rest (twenty-seventh session, 25 steps) 1.00 against 1.19 s, 259 against 293. The joint gaps through the landing
+        keep the extension on (True).
     kernel_precision : coupled mode, floating-point type of the arrays the coupled kernel's set-up stores and its sweeps
         read (per contact row its Jacobian rows, their mobility images and the 3×3 Delassus block; per joint the bodies'
         world inverse inertias and the block-Thomas factors): ``"auto"`` (default) float32 in systems that run the
