@@ -65,8 +65,6 @@ from headsim.solvers.chains import (
     ChainOptions,
     ChainSolver,
     Obstacle,
-    _joint_frames,
-    _log_so3_many,
     chain_model_from_polylines,
     chain_state_from_polylines,
     joint_gaps,
@@ -74,6 +72,7 @@ from headsim.solvers.chains import (
     potential_energy,
     spring_energy,
 )
+from headsim.solvers.chains_model import _joint_frames, _log_so3_many
 
 R_FIBRE = 35e-6
 DT = 1e-3

@@ -11,7 +11,7 @@ first coupled contact solve is captured (as in ``bench_contact_convergence.py``)
   the first d segments of every fibre that has a fibre–fibre row between two such segments carrying an
   impulse after the k sweeps; its problem holds every row (from the start, not the candidates) and every joint
   that touches it; the other bodies of those rows and joints are held (their mass and inertia × 1e9, their
-  velocity the iterate's). Local solvers (``--local``): ``exact``, :func:`headsim.solvers.chains._exact_final_solve`
+  velocity the iterate's). Local solvers (``--local``): ``exact``, :func:`headsim.solvers.chains_exact._exact_final_solve`
   (active set from the k sweeps' impulses, least-norm Schur complement, up to ``--rounds`` rounds); ``pgs``,
   :func:`local_delassus_pgs`, ``--local-sweeps`` sweeps of projected block Gauss–Seidel on the region's exact
   Delassus matrix (its chains, clamped at the roots and held at their far ends, eliminated exactly); ``dual``,
@@ -81,13 +81,13 @@ import numpy as np
 
 def local_delassus(model, rows, joints, R, used, u_minus=None, chunk=256):
     """The exact Delassus matrix W = J_c K⁻¹ J_cᵀ (3 rows per contact: normal, t₁, t₂) of the contact rows over the
-    bodies ``used`` (K: their M̃ with the joints as equality rows, :func:`headsim.solvers.chains._exact_system`),
+    bodies ``used`` (K: their M̃ with the joints as equality rows, :func:`headsim.solvers.chains_exact._exact_system`),
     with J_c; K⁻¹ applied in chunks of columns. Returns (W, J_c, u_free): u_free = K⁻¹ of the momentum at
     ``u_minus`` and the joint targets (velocities of ``used``), None without ``u_minus``."""
     import scipy.sparse
     import scipy.sparse.linalg
 
-    from headsim.solvers import chains as C
+    from headsim.solvers import chains_exact as C
 
     Mt, momentum, G, J = C._exact_system(model, rows, np.zeros((model.n_segments, 6)) if u_minus is None else u_minus,
                                          R, joints, used)
@@ -137,7 +137,7 @@ def delassus_pgs(W, v, x, targets, polygon, sweeps):
 def local_delassus_pgs(model, rows, joints, u_minus, R, targets, lam, fr, polygon, sweeps):
     """``--local pgs``: the root region (its other bodies held) solved by :func:`delassus_pgs` from its free
     velocities J_c u_free (u_free: K⁻¹ of the momentum and the joint targets). Returns (λ, friction)."""
-    from headsim.solvers import chains as C
+    from headsim.solvers import chains_exact as C
 
     W, Jc, u_free = local_delassus(model, rows, joints, R, C._exact_bodies(rows, joints), u_minus)
     x = np.column_stack([lam, fr])
@@ -180,7 +180,7 @@ def main():
     args = ap.parse_args()
     from bench_contact_convergence import _residuals, capture_first_solve, iterate_args
 
-    from headsim.solvers import chains as C
+    from headsim.solvers import chains_exact as C
     from headsim.solvers._kernels import chains_coupled as KC
 
     scene, state, a0 = capture_first_solve(args.fibres, args.segments, args.settle, args.friction, args.geometry,

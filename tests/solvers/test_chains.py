@@ -15,7 +15,6 @@ from headsim.errors import ParameterError
 from headsim.solvers import _kernels
 from headsim.solvers.chain_scenes import crossed_layer_stack
 from headsim.solvers.chains import (
-    STANDARD_GRAVITY,
     ChainOptions,
     ChainState,
     ChainSolver,
@@ -27,6 +26,7 @@ from headsim.solvers.chains import (
     potential_energy,
     spring_energy,
 )
+from headsim.solvers.chains_model import STANDARD_GRAVITY
 
 K = _kernels.chains
 R_FIBRE = 35e-6
@@ -1361,11 +1361,11 @@ def test_a_contact_on_a_joint_has_exactly_one_row_when_either_copy_is_kept():
 
 
 def test_exact_solve_rows_match_the_dense_block_matrices():
-    """The exact final solve's sparse rows (``chains._active_set_rows``, assembled from the selected rows'
+    """The exact final solve's sparse rows (``chains_exact._active_set_rows``, assembled from the selected rows'
     entries) are the dense blocks the solve was first written with: C = [G; J_n; T] and D = [G; E; T], E = J_n
     plus a sliding row's friction ratio × its tangent rows, T the sticking rows' t₁ rows then their t₂ rows;
     random sparse rows, active rows mixed sticking and sliding."""
-    from headsim.solvers.chains import _active_set_rows, _csr_entries
+    from headsim.solvers.chains_exact import _active_set_rows, _csr_entries
 
     rng = np.random.default_rng(7)
     N, n_rows, n_joint_rows = 24, 11, 9
@@ -1394,7 +1394,7 @@ def test_exact_solve_matrices_give_the_twists_kinematics():
     four bodies: ``_contact_matrix`` rows give d·(v_a + ω_a × r_a − v_b − ω_b × r_b) (b = −1: an obstacle),
     ``_joint_matrices`` give ω_l − ω_k and (v_k + ω_k × r_k) − (v_l + ω_l × r_l) (k = −1: the anchor), and
     ``_body_mass_matrix`` gives uᵀMu = Σ m|v|² + ωᵀIω."""
-    from headsim.solvers.chains import _body_mass_matrix, _contact_matrix, _joint_matrices
+    from headsim.solvers.chains_exact import _body_mass_matrix, _contact_matrix, _joint_matrices
 
     rng = np.random.default_rng(3)
     n = 4
@@ -1425,14 +1425,14 @@ def test_exact_solve_matrices_give_the_twists_kinematics():
 
 
 def test_exact_solve_shares_the_load_of_redundant_rows():
-    """``chains._min_norm_solve`` on M u − Cᵀλ = M u_free, C u = t with a row given twice (as two segments' end
+    """``chains_exact._min_norm_solve`` on M u − Cᵀλ = M u_free, C u = t with a row given twice (as two segments' end
     rows at one joint are): the velocities are those of the system without the copy, the copy's multiplier and
     its original's are equal and sum to the single row's (the least-norm split), and the residual is round-off;
     with the copy's target changed the rows are inconsistent and the residual is half the difference."""
     import scipy.linalg
     import scipy.sparse
 
-    from headsim.solvers.chains import EXACT_RELATIVE_TOLERANCE, EXACT_VELOCITY_TOLERANCE, _min_norm_solve
+    from headsim.solvers.chains_exact import EXACT_RELATIVE_TOLERANCE, EXACT_VELOCITY_TOLERANCE, _min_norm_solve
 
     rng = np.random.default_rng(11)
     N = 12
@@ -1470,7 +1470,7 @@ def test_exact_final_solve_holds_the_resting_stack_at_its_elastic_sag():
     multipliers it failed in all of them, as 'inconsistent' or 'active set'), and then the layers sink by no more
     than the elastic sag of a fibre between its supports 1 mm apart, 5qL⁴/(384 EI) ≈ 1.4e-10 m (with the
     Gauss–Seidel answer alone they sank 2e-9 m in 300 steps)."""
-    from headsim.solvers import chains
+    from headsim.solvers import chains_exact
 
     model, state = _capsule_stack(segments=5)
     solver = ChainSolver(ChainOptions())
@@ -1479,12 +1479,12 @@ def test_exact_final_solve_holds_the_resting_stack_at_its_elastic_sag():
     E = 3.89e9
     q = model.mass[0] / (2.0 * model.half_length[0]) * STANDARD_GRAVITY  # N/m
     sag = 5.0 * q * 1e-3**4 / (384.0 * E * np.pi * R_FIBRE**4 / 4.0)
-    chains.EXACT_FAILURES.clear()
+    chains_exact.EXACT_FAILURES.clear()
     exact = []
     for _ in range(300):
         state = solver.step(model, state, 1e-3, obstacles)
         exact.append(solver.last_stats.exact_solves)
-    assert min(exact) >= 1 and not chains.EXACT_FAILURES
+    assert min(exact) >= 1 and not chains_exact.EXACT_FAILURES
     sink = (y0 - state.position[:, 1]).reshape(4, -1).mean(1)
     assert sag < 2e-10 and sink.max() < sag
 
