@@ -357,13 +357,7 @@ def _extrapolate_rows(listed, lo, cnt, beta, lam, lam_prev, lam_start, fr, u, du
         a = body[c]
         b = partner[c]
         sc = _slot(c, n0, pslot)
-        for q in range(6):
-            u[a, q] += MA[sc, 0, q] * dl + MA[sc, 1, q] * dx + MA[sc, 2, q] * dy
-        if b >= 0:
-            for q in range(6):
-                u[b, q] -= MB[sc, 0, q] * dl + MB[sc, 1, q] * dx + MB[sc, 2, q] * dy
-        if dun.shape[0] > 0:
-            _add_normal_twists(dun, a, b, sc, dl, MA, MB)
+        _add_impulse_twists(u, dun, a, b, sc, dl, dx, dy, MA, MB)
         lam[c] = y
         fr[c, 0] += dx
         fr[c, 1] += dy
@@ -383,12 +377,29 @@ def _row_speed(JA, JB, sc, k, a, b, u):
 @njit(cache=True, inline="always")
 def _add_normal_twists(dun, a, b, sc, dl, MA, MB):
     """Add a normal impulse change dl (N s) of contact slot ``sc`` (bodies a, b; b = −1: obstacle) to the
-    normal-impulse twists dun (S, 6) that the restitution ε scales (kept only when ε > 0: an empty dun)."""
+    normal-impulse twists dun (S, 6) that the restitution ε scales (kept only when ε > 0: an empty dun, left
+    alone)."""
+    if dun.shape[0] == 0:
+        return
     for z in range(6):
         dun[a, z] += MA[sc, 0, z] * dl
     if b >= 0:
         for z in range(6):
             dun[b, z] -= MB[sc, 0, z] * dl
+
+
+@njit(cache=True, inline="always")
+def _add_impulse_twists(u, dun, a, b, sc, dl, dx, dy, MA, MB):
+    """Move the twists u (S, 6) by an impulse change of contact slot ``sc`` (bodies a, b; b = −1: obstacle):
+    normal dl, friction dx, dy (N s) along its rows, u_A += M_A⁻¹J_Aᵀ(dl, dx, dy), u_B −= M_B⁻¹J_Bᵀ(…); and the
+    restitution's normal-impulse twists dun by dl (:func:`_add_normal_twists`). The warm start and the
+    extrapolation (:func:`_extrapolate_rows`) move all three rows at once."""
+    for z in range(6):
+        u[a, z] += MA[sc, 0, z] * dl + MA[sc, 1, z] * dx + MA[sc, 2, z] * dy
+    if b >= 0:
+        for z in range(6):
+            u[b, z] -= MB[sc, 0, z] * dl + MB[sc, 1, z] * dx + MB[sc, 2, z] * dy
+    _add_normal_twists(dun, a, b, sc, dl, MA, MB)
 
 
 @njit(cache=True, inline="always")
@@ -404,8 +415,7 @@ def _set_normal_impulse(c, sc, a, b, new, vr, lam, u, dun, MA, MB, W):
         if b >= 0:
             for z in range(6):
                 u[b, z] -= MB[sc, 0, z] * dl
-        if dun.shape[0] > 0:
-            _add_normal_twists(dun, a, b, sc, dl, MA, MB)
+        _add_normal_twists(dun, a, b, sc, dl, MA, MB)
         for k in range(3):
             vr[k] += W[sc, k, 0] * dl
         ch = abs(dl) * W[sc, 0, 0]
@@ -669,13 +679,7 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             continue
         a = body[c]
         b = partner[c]
-        for z in range(6):
-            u[a, z] += MA[c, 0, z] * lam[c] + MA[c, 1, z] * fr[c, 0] + MA[c, 2, z] * fr[c, 1]
-        if b >= 0:
-            for z in range(6):
-                u[b, z] -= MB[c, 0, z] * lam[c] + MB[c, 1, z] * fr[c, 0] + MB[c, 2, z] * fr[c, 1]
-        if dun.shape[0] > 0:
-            _add_normal_twists(dun, a, b, c, lam[c], MA, MB)
+        _add_impulse_twists(u, dun, a, b, c, lam[c], fr[c, 0], fr[c, 1], MA, MB)
     Iw1 = np.empty((3, 3))
     T1 = np.empty((2, 3))
     promoted = 0
