@@ -10,6 +10,7 @@ from functools import cached_property
 import numpy as np
 
 from headsim.errors import DivergenceError, ParameterError
+from headsim.solvers._arrays import frozen_array
 from headsim.solvers._kernels import chains_frames as FK
 
 STANDARD_GRAVITY = 9.80665
@@ -95,16 +96,6 @@ class Obstacle:
 # ------------------------------------------------------------------------------------------------
 # model and state
 # ------------------------------------------------------------------------------------------------
-def _ro(a, dtype=np.float64, shape=None, name="array"):
-    a = np.array(a, dtype=dtype, order="C")
-    if shape is not None and a.shape != shape:
-        raise ParameterError(f"{name} must have shape {shape}, got {a.shape}")
-    if a.dtype.kind == "f" and not np.isfinite(a).all():
-        raise ParameterError(f"{name} contains NaN or inf")
-    a.flags.writeable = False
-    return a
-
-
 @dataclass(frozen=True, eq=False)
 class ChainModel:
     """What a step never changes. S segments in F fibres (CSR ``segment_offsets``).
@@ -135,12 +126,12 @@ class ChainModel:
         if off.ndim != 1 or off.size < 2 or off[0] != 0 or (np.diff(off) < 1).any():
             raise ParameterError("segment_offsets must start at 0 and give every fibre ≥ 1 segment")
         S, F = int(off[-1]), off.size - 1
-        object.__setattr__(self, "segment_offsets", _ro(off, np.int64))
+        object.__setattr__(self, "segment_offsets", frozen_array(off, np.int64))
         for name, shp in (("half_length", (S,)), ("radius", (S,)), ("mass", (S,)), ("inertia", (S, 3)),
                           ("root_point", (F, 3)), ("root_frame", (F, 3, 3)), ("joint_stiffness", (S, 3)),
                           ("rest_rotation", (S, 3)), ("joint_damping", (S,))):
-            object.__setattr__(self, name, _ro(getattr(self, name), shape=shp, name=name))
-        object.__setattr__(self, "anchored", _ro(self.anchored, np.bool_, (F,), "anchored"))
+            object.__setattr__(self, name, frozen_array(getattr(self, name), shape=shp, name=name))
+        object.__setattr__(self, "anchored", frozen_array(self.anchored, np.bool_, (F,), "anchored"))
         for name in ("half_length", "radius", "mass"):
             if not (getattr(self, name) > 0).all():
                 raise ParameterError(f"{name} must be > 0")

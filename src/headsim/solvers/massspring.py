@@ -20,21 +20,12 @@ import scipy.sparse as sp
 
 from headsim.errors import ParameterError
 from headsim.mesh.tet import TetMesh
+from headsim.solvers._arrays import frozen_array
 from headsim.solvers._assembly import ElementAssembler
 from headsim.solvers._kernels import massspring as _k
 from headsim.solvers.materials import Material, damping_from_ratio, spring_stiffness_from_young
 
 STANDARD_GRAVITY = np.array([0.0, -9.81, 0.0])  # m/s^2, y up as in the seed and the bundled faces
-
-
-def _frozen(a, dtype, shape, what):
-    arr = np.array(a, dtype=dtype, order="C")
-    if arr.shape != shape:
-        raise ParameterError(f"{what} must have shape {shape}, got {arr.shape}")
-    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
-        raise ParameterError(f"{what} contains NaN/inf")
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,7 +57,7 @@ class MassSpringModel:
     _assembler: ElementAssembler | None = field(default=None, repr=False)
 
     def __post_init__(self):
-        x = _frozen(self.rest_positions, np.float64, np.shape(self.rest_positions), "rest_positions")
+        x = frozen_array(self.rest_positions, name="rest_positions")
         if x.ndim != 2 or x.shape[1] != 3 or len(x) == 0:
             raise ParameterError(f"rest_positions must be (n, 3), got {x.shape}")
         n = len(x)
@@ -78,13 +69,13 @@ class MassSpringModel:
         vals = {
             "rest_positions": x,
             "edges": e,
-            "mass": _frozen(self.mass, np.float64, (n,), "mass"),
-            "rest_length": _frozen(self.rest_length, np.float64, (s,), "rest_length"),
-            "stiffness": _frozen(self.stiffness, np.float64, (s,), "stiffness"),
-            "damping": _frozen(self.damping, np.float64, (s,), "damping"),
-            "fixed": _frozen(self.fixed, bool, (n,), "fixed"),
-            "external_force": _frozen(self.external_force, np.float64, (n, 3), "external_force"),
-            "body": _frozen(self.body, np.int32, (n,), "body"),
+            "mass": frozen_array(self.mass, np.float64, (n,), "mass"),
+            "rest_length": frozen_array(self.rest_length, np.float64, (s,), "rest_length"),
+            "stiffness": frozen_array(self.stiffness, np.float64, (s,), "stiffness"),
+            "damping": frozen_array(self.damping, np.float64, (s,), "damping"),
+            "fixed": frozen_array(self.fixed, bool, (n,), "fixed"),
+            "external_force": frozen_array(self.external_force, np.float64, (n, 3), "external_force"),
+            "body": frozen_array(self.body, np.int32, (n,), "body"),
         }
         if (vals["mass"] <= 0).any():
             raise ParameterError("every mass must be > 0 kg")
