@@ -570,9 +570,9 @@ storage passes this finer check: after this command with ``--steps 20``, 293 ove
 trade-offs that earlier sessions judged on ``max_penetration``: ``--set predictor_extension=False`` 1.00 against 1.19
 s per step, 259 against 293 overlaps above 10 µm away from the roots (99th percentile 18.9 against 18.4 µm), 1,129
 against 1,145 next to them; ``--set push_out_sweeps=15`` 1.09 s, 258 above 10 µm but 3,307 against 2,523 above 1 µm
-(99th percentile 16.3 µm), 1,194 next to the roots. At rest neither costs accuracy by this measure; the after-landing
-states where the twenty-sixth session found them worse (by ``max_penetration`` and the joint gaps) were not
-re-checked. A profile of 5 resting steps (cProfile): the iteration 0.83 s, the set-ups 0.095 s, the
+(99th percentile 16.3 µm), 1,194 next to the roots. At rest neither costs accuracy by this measure; through the landing
+(re-checked in the twenty-eighth session, see ``ChainOptions.predictor_extension``) predictor_extension=False keeps
+the overlaps but opens the joints to 43.8 against 7.6 µm, so the default stays. A profile of 5 resting steps (cProfile): the iteration 0.83 s, the set-ups 0.095 s, the
 joint stage 0.052 s, the pair detection kernel 0.024 s per step; the Python between the kernels is a few per cent.
 **The root packing is not the stall's cause**: the strand built on a 210 µm lattice (3 diameters instead of 1.5,
 ``--fibre-spacing 210e-6``; the seed gives no packing), run from its start to t = 1.0 s (29 min), still has its
