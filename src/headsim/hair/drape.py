@@ -35,6 +35,7 @@ import numpy as np
 
 from headsim.collide import GridDistanceField, PlaneField, SphereField
 from headsim.errors import DivergenceError, ParameterError
+from headsim.hair.drape_pictures import plane_patch, sphere_surface, wrapped_title, write_frames
 from headsim.hair.properties import MASS_DENSITY, MODULI_ROBBINS, friction
 from headsim.solvers.chains import (
     ChainModel,
@@ -346,6 +347,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         polys = [np.stack([x, np.full(n + 1, 0.002 + r), np.full(n + 1, z)], 1) for z in zs]
         # fixed on one side: the roots at −x are anchored, the fibres extend along +x over the sphere
         obstacles = [Obstacle(SphereField((0.0, -R, 0.0), R), name="sphere")]
+        mesh = sphere_surface((0.0, -R, 0.0), R)
         desc = (f"{F} horizontal fibres × {n} segments, {length * 100:g} cm, roots fixed at x = "
                 f"{-50 * length:g} cm, over a sphere R = {R * 100:g} cm centred under the midline "
                 f"(top 2 mm below the ribbon); friction {friction_mode}")
@@ -364,6 +366,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
             R = g.sphere_radius
             # centred under the helix axis (x = z = 0) unless offset, its top at y = 0
             obstacles = [Obstacle(SphereField((g.sphere_offset, -R, 0.0), R), name="sphere")]
+            mesh = sphere_surface((g.sphere_offset, -R, 0.0), R)
             desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, {strand}, roots at y = {top * 100:.3g} cm, "
                     f"sphere R = {R * 100:.3g} cm with its top at y = 0, centre {g.sphere_offset * 100:.3g} cm "
                     f"from the helix axis; friction {friction_mode}")
@@ -382,6 +385,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         polys = list(_ringlet(F, n, length, 0.012, 0.01, (-0.05, 0.05, 0.0), spacing, vertical=False))
         nrm = (np.sin(alpha), np.cos(alpha), 0.0)
         obstacles = [Obstacle(PlaneField((0.0, 0.0, 0.0), nrm), name="plane 22.5°")]
+        mesh = plane_patch((0.0, 0.0, 0.0), nrm, polys[0][0], length)
         desc = (f"{F} fibres × {n} segments, {length * 100:g} cm, a horizontal helical strand (centreline helix "
                 f"radius 1.2 cm, pitch 1 cm; fibres on a {spacing * 1e6:.0f} µm hexagonal lattice; rest shape "
                 f"straight), roots fixed, above a 22.5° plane; "
@@ -508,7 +512,7 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
     fig, ax = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
     ax[0].semilogy(result.step_time, np.maximum(result.kinetic, 1e-30), label="kinetic")
     ax[0].set_ylabel("kinetic energy [J]")
-    ax[0].set_title(scene.description, fontsize=7)
+    ax[0].set_title(wrapped_title(scene.description), fontsize=7)
     ax[1].plot(result.step_time, result.fibre_contacts, label="fibre–fibre")
     ax[1].plot(result.step_time, result.obstacle_contacts, label="fibre–obstacle")
     ax[1].set_ylabel("active contacts")
@@ -519,24 +523,7 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
     fig.savefig(p, dpi=110)
     plt.close(fig)
     files.append(p)
-    (folder / "frames").mkdir()
-    allp = result.polylines.reshape(-1, 3)
-    lo, hi = allp.min(0), allp.max(0)
-    mid, span = 0.5 * (lo + hi), 0.55 * float((hi - lo).max()) + 1e-6
-    sub = max(1, F // 150)
-    for k in range(len(result.times)):
-        fig = plt.figure(figsize=(4.5, 4.5))
-        a3 = fig.add_subplot(projection="3d")
-        for q in result.polylines[k][::sub]:
-            a3.plot(q[:, 0], q[:, 2], q[:, 1], color="saddlebrown", lw=0.5)
-        a3.set_xlim(mid[0] - span, mid[0] + span)
-        a3.set_ylim(mid[2] - span, mid[2] + span)
-        a3.set_zlim(mid[1] - span, mid[1] + span)
-        a3.set_title(f"{scene.name}  t = {result.times[k]:.3f} s", fontsize=8)
-        p = folder / "frames" / f"frame_{k:04d}.png"
-        fig.savefig(p, dpi=80)
-        plt.close(fig)
-        files.append(p)
+    files += write_frames(folder / "frames", scene.name, result.times, result.polylines, scene.obstacle_mesh)
     if render:
         from headsim.hair.render.frames import render_frames
 
