@@ -124,6 +124,27 @@ Nesterov 1.1), after 120 sweeps 3.2–3.5 (plain 6.9, Nesterov 0.52). MPRGP (Dos
 dual QP on the joint-eliminated Delassus operator, every product one exact chain solve, rows scaled by their free
 W₀₀), on the step's first solve made frictionless: the largest violation went from 40.6 mm/s (the warm start) to
 33–38 mm/s in 180 products, then a zero division (a degenerate proportioning step). Neither is kept: the Nesterov-accelerated Gauss–Seidel stays the best measured.
+
+Issue 10, twenty-ninth session: the same questions on the full-size reference scene at rest (``--state
+benchmarks/data/drape_355x100_aniso_t1.0.npz``, the velocity solve of the fourth step's last pass, 75.6 k rows,
+35.5 k joints; made frictionless and without its candidates; scripts not kept). Reference: MPRGP run to 9,704
+products of the joint-eliminated operator A = J P₀ M⁻¹ Jᵀ (P₀ the exact chain solve; 12.6 k rows active, smallest
+w = A λ + q −3.7e-4 m/s, largest |λ w| 6.8e-11). Error of the twists against it, largest / median point-velocity
+difference |Δv| + |Δω| ρ (m/s), all warm-started from the step's impulses:
+
+* the shipped kernel (Nesterov, root sweeps): 10 / 30 / 60 / 100 sweeps 0.109 / 0.056 / 0.037 / 0.023 and
+  2.0e-3 / 1.0e-3 / 5.1e-4 / 2.7e-4 (≈ 1/k); 1,000 sweeps 4.5e-3 / 1.7e-5;
+* MPRGP with the rows scaled by their free W₀₀ (scaled ‖A‖ ≈ 2.5): 30 / 100 / 300 iterations (60 / 200 / 600
+  products) 0.093 / 0.069 / 0.053 and 2.0e-3 / 1.4e-3 / 9.5e-4, i.e. 300 iterations match 30 sweeps;
+* the same with the exact joint-eliminated diagonal D = diag A (by probing: 533 colourings of the rows so that
+  no two rows of a probe share a fibre; D / W₀₀ is 0.052 in the median, 4e-4 at least): scaled ‖A‖ ≈ 32, and
+  30 / 100 / 300 iterations 0.074 / 0.061 / 0.046 and 1.9e-3 / 1.3e-3 / 8.8e-4: no better. A diagonal cannot fix
+  the conditioning: the slow modes are collective (a fibre's rows coupled through its chain, the bundle's rows
+  through each other), so the remaining candidate is a coarse correction (aggregates of fibres / of the
+  bundle), not tried;
+* the rows' order: the kernel's rows visited bottom-up (by the contact point's height above the sphere),
+  top-down or at random instead of in index order give the same errors to within 8 % at 10 / 30 / 60 sweeps
+  (the sweeps alternate their direction, and the error is not a stack's one-layer-per-sweep propagation).
 """
 
 from __future__ import annotations
