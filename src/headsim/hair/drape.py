@@ -173,6 +173,7 @@ class DrapeResult:
     qp_sweeps: np.ndarray
     qp_capped: np.ndarray  # (steps,) contact solves of the step that ended at the sweep cap (no tolerance met)
     seconds: dict = field(default_factory=dict)  # summed per-phase wall time, s
+    step_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (steps,) wall time of each step, s
 
 
 def _hex_lattice(n: int, spacing: float) -> np.ndarray:
@@ -455,7 +456,8 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
     state = scene.state
     times, frames = [0.0], [polylines_from_state(scene.model, state)]
     cols = {k: [] for k in ("step_time", "kinetic", "total_energy", "contacts", "fibre_contacts", "obstacle_contacts",
-                            "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps", "qp_capped")}
+                            "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps", "qp_capped",
+                            "step_seconds")}
     secs: dict[str, float] = {}
     for i in range(steps):
         state = solver.step(scene.model, state, scene.dt, scene.obstacles)
@@ -468,6 +470,7 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
         cols["step_time"].append(st.time)
         cols["kinetic"].append(st.kinetic_energy)
         cols["total_energy"].append(st.total_energy)
+        cols["step_seconds"].append(st.seconds.get("total", 0.0))
         for k in ("contacts", "fibre_contacts", "obstacle_contacts", "max_joint_gap", "max_penetration",
                   "newton_iterations", "qp_sweeps", "qp_capped"):
             cols[k].append(getattr(st, k))
@@ -499,7 +502,7 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
                         fibre_contacts=result.fibre_contacts, obstacle_contacts=result.obstacle_contacts,
                         max_joint_gap=result.max_joint_gap, max_penetration=result.max_penetration,
                         newton_iterations=result.newton_iterations, qp_sweeps=result.qp_sweeps,
-                        qp_capped=result.qp_capped, radius=scene.model.radius[0], dt=scene.dt)
+                        qp_capped=result.qp_capped, step_seconds=result.step_seconds, radius=scene.model.radius[0], dt=scene.dt)
     files.append(npz)
     (folder / "vtk").mkdir()
     F, nn = result.polylines.shape[1:3]
