@@ -83,7 +83,7 @@ def test_cli_drape_writes_outputs_and_rejects_bad_input(tmp_path):
     r = runner.invoke(app, ["hair", "drape", "--scene", "plane", "--friction", "iso", "--fibres", "3",
                             "--segments", "30", "--duration", "0.01", "--frames", "3", "--out", str(out)])
     assert r.exit_code == 0, r.output
-    for name in ("trajectory.npz", "energy_contacts.png", "vtk/frame_0000.vtu", "frames/frame_0000.png"):
+    for name in ("trajectory.npz", "energy_contacts.png", "vtk/frame_0000.vtu", "frames/frame_0000.png", "report.html"):
         assert (out / name).exists()
     data = np.load(out / "trajectory.npz")
     assert data["polylines"].shape[1:] == (3, 31, 3)

@@ -1,10 +1,6 @@
 """Mask report: result.json, PNGs, meshes, and report.html rendering in headless Chromium."""
 
 import json
-import os
-import re
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -13,6 +9,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _fit_case import coarse_fit, coarse_problem
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+from headless_chromium import render_page
 from headsim.mask.report import write_fit_report
 from headsim.mask.search import CurvePoint, SearchOptions, SearchResult
 
@@ -75,42 +74,14 @@ def test_report_states_an_acceptable_leak_window(tmp_path):
     assert data["leak_search_status"] == "window"
 
 
-def _chromium():
-    for name in ("chromium", "chromium-browser", "google-chrome"):
-        path = shutil.which(name)
-        if path:
-            return path
-    if os.environ.get("CI"):
-        pytest.fail("Chromium is required under CI (apt-get install chromium) but was not found")
-    pytest.skip("no Chromium on this machine (install Debian's `chromium` to run this check); not under CI")
-
-
-_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-          "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync",
-          "--hide-scrollbars"]
-
-
 def test_report_renders_in_headless_chromium(report_dir, tmp_path):
     """report.html opens offline in headless Chromium, plotly draws the 3-D face (WebGL through
     SwiftShader): the DOM has the plotly scene and no 'WebGL is not supported' message, and the
     screenshot of the 3-D area is not uniform."""
-    exe = _chromium()
-    url = (report_dir / "report.html").as_uri()
-    common = _FLAGS + [f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=15000"]
-    dom = subprocess.run([exe, *common, "--dump-dom", url], capture_output=True, text=True, timeout=180)
-    assert dom.returncode == 0, dom.stderr[-2000:]
-    # the embedded plotly.js source contains the message itself: look at the rendered page only
-    rendered = re.sub(r"<script\b.*?</script>", "", dom.stdout, flags=re.S | re.I)
+    rendered, img = render_page(report_dir / "report.html", tmp_path)
     assert "WebGL is not supported" not in rendered
     assert "gl-container" in rendered  # plotly created the WebGL 3-D scene
     assert "main-svg" in rendered  # and drew the figures
-    shot = tmp_path / "shot.png"
-    run = subprocess.run([exe, *common, "--window-size=1200,1400", f"--screenshot={shot}", url],
-                         capture_output=True, text=True, timeout=180)
-    assert run.returncode == 0 and shot.exists(), run.stderr[-2000:]
-    import matplotlib.image as mpimg
-
-    img = mpimg.imread(shot)[..., :3]
     # the numbers table sits on top; the 3-D scene fills the lower part of the first screen
     lower = img[img.shape[0] // 2:, :, :]
     assert lower.std() > 0.02, "the 3-D area is uniform: plotly/WebGL did not draw"

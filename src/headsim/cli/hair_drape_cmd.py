@@ -26,13 +26,14 @@ def drape_cmd(
     friction_objective: str = typer.Option("qp", help="qp (recommended) | lp (seed eq. 8.62, HiGHS)"),
     render: bool = typer.Option(False, help="also write path-traced frames to rendered/ (slow)"),
 ) -> None:
-    """Drop fibres onto an obstacle; write trajectory (NPZ + VTK polylines), energy/contacts plot, frames."""
+    """Drop fibres onto an obstacle; write trajectory (NPZ + VTK polylines), energy/contacts plot, frames, report.html."""
     import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from headsim.cli._common import atomic_output_dir
     from headsim.errors import ParameterError
     from headsim.hair.drape import FRICTION_MODES, SCENES, bounding_box, build_drape_scene, run_drape, write_drape
+    from headsim.report.drape import write_drape_report
 
     if scene not in SCENES:
         raise ParameterError(f"--scene must be one of {', '.join(SCENES)}, got {scene!r}")
@@ -55,6 +56,7 @@ def drape_cmd(
                                     progress=lambda i, n: progress.update(task, completed=i))
         else:
             files = write_drape(sc, res, tmp)
+        files.append(write_drape_report(sc, res, tmp / "report.html"))
     ext, vol = bounding_box(res.polylines[-1])
     # the median: the first steps of a fresh installation include the kernels' compilation
     per_step = float(np.median(res.step_seconds)) if len(res.step_seconds) else 0.0

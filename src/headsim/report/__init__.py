@@ -1,7 +1,7 @@
 """Reports: interactive offline HTML pages and PNG pictures of results.
 
 Generic pieces (:mod:`headsim.report.html`, :mod:`headsim.report.images`) and app pages built on them
-(:mod:`headsim.report.graft`).
+(:mod:`headsim.report.graft`, :mod:`headsim.report.drape`).
 """
 
 from headsim.report.html import MeshLayer, mesh_figure, numbers_table, write_html_report

@@ -115,7 +115,9 @@ def write_html_report(path: str | os.PathLike, *, title: str, figures: Sequence[
     first = True
     for heading, fig in figures:
         parts.append(f"<h2>{html.escape(heading)}</h2>")
-        parts.append(fig.to_html(full_html=False, include_plotlyjs=True if first else False))
+        # auto_play False: a figure with frames (a slider over time) opens at its slider's active step instead of
+        # playing through every frame on load (plotly's default) and stopping wherever that left it
+        parts.append(fig.to_html(full_html=False, include_plotlyjs=True if first else False, auto_play=False))
         first = False
     parts.append("</body></html>")
     path = Path(path)
