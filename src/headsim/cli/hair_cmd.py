@@ -7,7 +7,8 @@ from pathlib import Path
 
 import typer
 
-app = typer.Typer(help="Hair fibres: implicit Kirchhoff rods from the keratin property database.",
+app = typer.Typer(help="Hair fibres: Kirchhoff rods, fibre collision detection, contact response (drape), "
+                       "electrostatics, hairstyle growth and rendering.",
                   no_args_is_help=True)
 
 
