@@ -502,7 +502,8 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
                         fibre_contacts=result.fibre_contacts, obstacle_contacts=result.obstacle_contacts,
                         max_joint_gap=result.max_joint_gap, max_penetration=result.max_penetration,
                         newton_iterations=result.newton_iterations, qp_sweeps=result.qp_sweeps,
-                        qp_capped=result.qp_capped, step_seconds=result.step_seconds, radius=scene.model.radius[0], dt=scene.dt)
+                        qp_capped=result.qp_capped, step_seconds=result.step_seconds,
+                        radius=scene.model.radius[0], dt=scene.dt)
     files.append(npz)
     (folder / "vtk").mkdir()
     F, nn = result.polylines.shape[1:3]
