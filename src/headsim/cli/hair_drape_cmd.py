@@ -26,7 +26,7 @@ def drape_cmd(
     friction_objective: str = typer.Option("qp", help="qp (recommended) | lp (seed eq. 8.62, HiGHS)"),
     render: bool = typer.Option(False, help="also write path-traced frames to rendered/ (slow)"),
 ) -> None:
-    """Drop fibres onto an obstacle; write trajectory (NPZ + VTK polylines), energy/contacts plot, frames, report.html."""
+    """Drop fibres onto an obstacle; write the trajectory (NPZ + VTK polylines), plots, frames and report.html."""
     import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
