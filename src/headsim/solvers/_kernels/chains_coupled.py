@@ -463,12 +463,18 @@ def _touches_root(root_pos, a, b):
 
 
 @njit(cache=True)
-def _visit_root_rows(forward, root_rows, n_root, n0, pslot, body, partner, JA, JB, MA, MB, W, target, lam, fr, u, dun,
-                     mu_cos, mu_sin, m, vr, px, py, Bl, cl):
-    """One Gauss–Seidel visit of every root row (``root_rows[:n_root]``, forwards or backwards; ``root_sweeps`` of
-    :func:`_coupled_iterate_impl`): the normal row, then the friction block, as in the kernel's sweeps."""
-    for q in range(n_root):
-        c = root_rows[q] if forward else root_rows[n_root - 1 - q]
+def _visit_root_rows(forward, rows, lo, hi, n0, pslot, body, partner, JA, JB, MA, MB, W, target, lam, fr, u, dun,
+                     mu_cos, mu_sin, m):
+    """One Gauss–Seidel visit of the root rows ``rows[lo:hi]`` (one domain's, or the cross rows; forwards or
+    backwards; ``root_sweeps`` of :func:`_coupled_iterate_impl`): the normal row, then the friction block, as in
+    the kernel's sweeps."""
+    vr = np.zeros(3)
+    px = np.zeros(max(m, 1))
+    py = np.zeros(max(m, 1))
+    Bl = np.zeros((2, 2))
+    cl = np.zeros(2)
+    for q in range(hi - lo):
+        c = rows[lo + q] if forward else rows[hi - 1 - q]
         sc = _slot(c, n0, pslot)
         a = body[c]
         b = partner[c]
@@ -595,7 +601,9 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
     the stopping rule, ``root_sweeps`` extra sweeps over the root region alone: an exact solve of the first
     ``root_segments`` joints of every chain anchored at its root (the Thomas factors of those rows are the
     whole chain's first ones; the joint after them keeps its impulse), then a visit of every row that
-    touches one of those segments, forwards and backwards in turn. Block Gauss–Seidel steps in another
+    touches one of those segments, forwards and backwards in turn, by domain as the full sweeps visit theirs
+    (``body_part``: each domain's root rows in parallel, then the cross rows; backwards the other way round; one
+    domain: the rows in their order, as before). Block Gauss–Seidel steps in another
     order: the fixed point is the same, and the sweep that ends a converged iteration is a plain full
     sweep (the Nesterov extrapolation after the sweep counts the root sweeps' changes as the sweep's). 0
     (either): the former iterates, bitwise. Why the root: a push on a segment next to the anchored
@@ -773,11 +781,11 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
             if _touches_root(root_pos, body[c], partner[c]):
                 root_rows[n_root] = c
                 n_root += 1
-    rvr = np.zeros(3)
-    rpx = np.zeros(max(m, 1))
-    rpy = np.zeros(max(m, 1))
-    rBl = np.zeros((2, 2))
-    rcl = np.zeros(2)
+    # the root rows by domain (as ``order``: each domain's, then the cross rows), visited like the full sweeps
+    root_seg = np.empty(nc if root_sweeps > 0 else 0, np.int64)
+    root_off = np.zeros(nd + 2, np.int64)
+    if n_root > 0:
+        _segment_rows(root_rows, n_root, dom, nd, root_seg, root_off)
     while it < sweep_cap:
         it += 1
         if it == sweep_cap:
@@ -871,8 +879,16 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                         _chain_sweep(j0, min(chain_off[ch + 1], j0 + root_segments), joint_k, joint_l, joint_rk,
                                      joint_rl, joint_target, joint_compliance_inv, joint_w0, u, mass, Ik, Il, Dinv, G,
                                      Up, Lam, y, dq)
-                _visit_root_rows(rs % 2 == 0, root_rows, n_root, n0, pslot, body, partner, JA, JB, MA, MB, W, target,
-                                 lam, fr, u, dun, mu_cos, mu_sin, m, rvr, rpx, rpy, rBl, rcl)
+                # the root rows: each domain's in parallel, then the cross rows (backwards: the other way round)
+                fwd_r = rs % 2 == 0
+                for phase in range(2):
+                    par_phase = (phase == 0) == fwd_r
+                    nseg = nd if par_phase else 1
+                    base = 0 if par_phase else nd
+                    for dd in prange(nseg):
+                        d = np.int64(dd) + base
+                        _visit_root_rows(fwd_r, root_seg, root_off[d], root_off[d + 1], n0, pslot, body, partner, JA,
+                                         JB, MA, MB, W, target, lam, fr, u, dun, mu_cos, mu_sin, m)
         dot = 0.0  # the momentum's restart test over this sweep's listed rows (before promotions move them)
         if momentum > 0.0:
             for dd in prange(nd + 1):
@@ -964,6 +980,8 @@ def _coupled_iterate_impl(JA, JB, MA, MB, W, Ik, Il, Dinv, G, Up, body, partner,
                 screen_margin = _screen_margin(u_ref, rho)
             screened = True
             promoted += n_prom
+            if n_root > root_off[nd + 1]:  # promoted root rows join the root rows' domain segments
+                _segment_rows(root_rows, n_root, dom, nd, root_seg, root_off)
             if n_prom > 0:  # the new rows join their domains' segments (and lists, after the listed rows)
                 _segment_rows(rowid, n_on, dom, nd, order, off)
                 q = 0
