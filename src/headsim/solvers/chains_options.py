@@ -395,7 +395,7 @@ class ChainOptions:
         / 2.2 k in the two domains, 2.0 k crossing), and one root sweep's visits took ≈ 1.9 ms of its ≈ 2.1 ms on one
         thread (the root chains' solves 0.2 ms), ≈ 40 root sweeps per solve. The step's three captured solves
         replayed, best of 5 and of 8 interleaved runs: 211 / 300 / 352 → 203 / 275 / 308 ms and 148 / 186 / 186 →
-        135 / 178 / 174 ms (−6.5 % of the kernel in both), the same sweeps, promotions to ±2 % and final residuals
+        135 / 178 / 174 ms (−6.5 % of the kernel in both), the same sweeps, promotions to ±3 % and final residuals
         to ±10 %; one domain: the former iterates, bitwise. At the step level the gain (≈ 3–5 %) is below the
         machine's noise (8 steps from t = 1.0 s, alternated: 1.03 / 1.35 s before, 1.16 / 1.19 s after), with the
         same end-state overlaps (``bench_drape.py``: 281 against 260 > 10 µm away from the roots).
