@@ -144,6 +144,9 @@ def friction_law(mode: str) -> FrictionLaw:
     raise ParameterError(f"friction must be one of {', '.join(FRICTION_MODES)}, got {mode!r}")
 
 
+OBSTACLE_ALBEDO = (0.2, 0.22, 0.26)  # the obstacles' diffuse albedo in the path-traced frames (mid grey)
+
+
 @dataclass
 class DrapeScene:
     name: str
@@ -443,6 +446,24 @@ def volume_stability(result: DrapeResult, window: float) -> tuple[float, float]:
     return spread, float(result.kinetic[-1] / max(result.kinetic.max(), 1e-300))
 
 
+def render_surfaces(scene: DrapeScene) -> list:
+    """The scene's analytic obstacles (spheres, planes; at their iso-level) as surfaces of the path-traced frames
+    (:class:`headsim.hair.render.Surface`); the grid-field obstacles (terrain, head) are not drawn there."""
+    from headsim.hair.render import Surface
+
+    out = []
+    for ob in scene.obstacles:
+        f = ob.field
+        if isinstance(f, SphereField):
+            out.append(Surface("sphere", tuple(map(float, f.center)), float(f.radius) + ob.level,
+                               albedo=OBSTACLE_ALBEDO))
+        elif isinstance(f, PlaneField):
+            n = np.asarray(f.normal_vector, float) / np.linalg.norm(f.normal_vector)
+            out.append(Surface("plane", tuple(np.asarray(f.point, float) + ob.level * n), normal=tuple(n),
+                               albedo=OBSTACLE_ALBEDO))
+    return out
+
+
 def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: int | None = None,
               progress: Callable[[int, int], None] | None = None, fibre_loop: bool = False,
               max_speed: float = 20.0) -> DrapeResult:
@@ -532,5 +553,5 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
         from headsim.hair.render.frames import render_frames
 
         files += render_frames(list(result.polylines), folder / "rendered", radius=float(scene.model.radius[0]),
-                               progress=progress)
+                               progress=progress, surfaces=render_surfaces(scene))
     return files

@@ -97,15 +97,102 @@ def _sample_theta(prm, mixp, theta_r, state):
     return (_rand(state) - 0.5) * math.pi
 
 
+@njit(cache=True, inline="always")
+def _light_at(lights, q, xx, xy, xz):
+    """Light q as seen from x: unit direction towards it, its distance (inf: directional) and its irradiance
+    there (RGB; a point light's intensity / distance²)."""
+    if lights[q, 0] == 0.0:
+        return lights[q, 1], lights[q, 2], lights[q, 3], np.inf, lights[q, 4], lights[q, 5], lights[q, 6]
+    wx = lights[q, 1] - xx
+    wy = lights[q, 2] - xy
+    wz = lights[q, 3] - xz
+    dist = math.sqrt(wx * wx + wy * wy + wz * wz)
+    inv = 1.0 / (dist * dist)
+    return wx / dist, wy / dist, wz / dist, dist, lights[q, 4] * inv, lights[q, 5] * inv, lights[q, 6] * inv
+
+
+@njit(cache=True)
+def surface_hit(ox, oy, oz, dx, dy, dz, tmin, surfaces):
+    """Nearest hit t > tmin of the ray o + t d (d unit) with the analytic opaque surfaces, rows of ``surfaces``
+    (k, 10): kind (0 sphere: centre, radius; 1 plane: point, unit normal), (x, y, z), (r, 0, 0) or (nx, ny, nz),
+    diffuse albedo RGB. Returns (t, row) or (inf, −1)."""
+    best_t = np.inf
+    best = -1
+    for k in range(surfaces.shape[0]):
+        px = surfaces[k, 1] - ox
+        py = surfaces[k, 2] - oy
+        pz = surfaces[k, 3] - oz
+        if surfaces[k, 0] == 0.0:  # sphere: |o + t d − c|² = r²
+            bb = px * dx + py * dy + pz * dz
+            cc = px * px + py * py + pz * pz - surfaces[k, 4] ** 2
+            disc = bb * bb - cc
+            if disc < 0.0:
+                continue
+            sq = math.sqrt(disc)
+            t = bb - sq
+            if t <= tmin:
+                t = bb + sq
+        else:  # plane: (o + t d − p)·n = 0
+            den = dx * surfaces[k, 4] + dy * surfaces[k, 5] + dz * surfaces[k, 6]
+            if den == 0.0:
+                continue
+            t = (px * surfaces[k, 4] + py * surfaces[k, 5] + pz * surfaces[k, 6]) / den
+        if tmin < t < best_t:
+            best_t = t
+            best = k
+    return best_t, best
+
+
+@njit(cache=True)
+def _shade_surface(k, xx, xy, xz, dx, dy, dz, surfaces, lights, env, a, b, radius, left, right, bmin, bmax, start,
+                   count, stack, out):
+    """Radiance (3,) leaving the diffuse surface row k at x towards −d: Lambert, ρ/π Σ_lights E cos⁺ with shadow
+    rays through the fibres and the other surfaces, plus ρ × env (a uniform environment seen from an open surface,
+    exact for a lone sphere or plane; the fibres' shading of the environment is not counted)."""
+    if surfaces[k, 0] == 0.0:
+        nx = (xx - surfaces[k, 1]) / surfaces[k, 4]
+        ny = (xy - surfaces[k, 2]) / surfaces[k, 4]
+        nz = (xz - surfaces[k, 3]) / surfaces[k, 4]
+    else:
+        nx, ny, nz = surfaces[k, 4], surfaces[k, 5], surfaces[k, 6]
+    if nx * dx + ny * dy + nz * dz > 0.0:  # the side the ray comes from
+        nx, ny, nz = -nx, -ny, -nz
+    out[0] = surfaces[k, 7] * env[0]
+    out[1] = surfaces[k, 8] * env[1]
+    out[2] = surfaces[k, 9] * env[2]
+    for q in range(lights.shape[0]):
+        wx, wy, wz, dist, e0, e1, e2 = _light_at(lights, q, xx, xy, xz)
+        cos = nx * wx + ny * wy + nz * wz
+        if cos <= 0.0:
+            continue
+        # shadow rays start a hair's breadth off the surface
+        ox, oy, oz = xx + 1e-9 * nx, xy + 1e-9 * ny, xz + 1e-9 * nz
+        ts, _ = surface_hit(ox, oy, oz, wx, wy, wz, 0.0, surfaces)
+        if ts < dist:
+            continue
+        th, ph = intersect(ox, oy, oz, wx, wy, wz, 0.0, dist, -1, True, a, b, radius, left, right, bmin, bmax, start,
+                           count, stack)
+        if ph >= 0:
+            continue
+        f = cos / math.pi
+        out[0] += surfaces[k, 7] * f * e0
+        out[1] += surfaces[k, 8] * f * e1
+        out[2] += surfaces[k, 9] * f * e2
+
+
 @njit(cache=True)
 def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background, max_scatter,
-                rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, out):
+                rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces, out):
     """Accumulate the mean radiance of pixel (i, j) over ``spp`` samples into ``out`` (3,).
 
-    cam (12,): position, forward, right·tan(fov_x/2), up·tan(fov_y/2)."""
+    cam (12,): position, forward, right·tan(fov_x/2), up·tan(fov_y/2). surfaces (k, 10): opaque diffuse
+    surfaces (:func:`surface_hit`; k = 0: fibres alone): a path that reaches one ends there with its radiance
+    (:func:`_shade_surface`), and they cast shadows on the fibres."""
     state = np.empty(1, np.uint64)
     lobes = np.empty((3, 3))
     stack = np.empty(_STACK, np.int64)
+    srad = np.empty(3)
+    has_surfaces = surfaces.shape[0] > 0
     acc0 = 0.0
     acc1 = 0.0
     acc2 = 0.0
@@ -129,8 +216,18 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, ligh
         l2 = 0.0
         skip = -1
         for depth in range(max_scatter):
-            t, prim = intersect(ox, oy, oz, dx, dy, dz, 1e-9, np.inf, skip, False, a, b, radius, left, right,
+            t_s, k_s = np.inf, -1
+            if has_surfaces:
+                t_s, k_s = surface_hit(ox, oy, oz, dx, dy, dz, 1e-9, surfaces)
+            t, prim = intersect(ox, oy, oz, dx, dy, dz, 1e-9, t_s, skip, False, a, b, radius, left, right,
                                 bmin, bmax, start, count, stack)
+            if prim < 0 and k_s >= 0:  # the path ends on a surface
+                _shade_surface(k_s, ox + t_s * dx, oy + t_s * dy, oz + t_s * dz, dx, dy, dz, surfaces, lights, env,
+                               a, b, radius, left, right, bmin, bmax, start, count, stack, srad)
+                l0 += b0 * srad[0]
+                l1 += b1 * srad[1]
+                l2 += b2 * srad[2]
+                break
             if prim < 0:
                 if depth == 0:
                     l0 += background[0]
@@ -167,20 +264,11 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, ligh
                 h_r = math.sin(phi_r - phi_n)
             # next-event estimation
             for k in range(lights.shape[0]):
-                if lights[k, 0] == 0.0:
-                    wx, wy, wz = lights[k, 1], lights[k, 2], lights[k, 3]
-                    dist = np.inf
-                    e0, e1, e2 = lights[k, 4], lights[k, 5], lights[k, 6]
-                else:
-                    wx = lights[k, 1] - xx
-                    wy = lights[k, 2] - xy
-                    wz = lights[k, 3] - xz
-                    dist = math.sqrt(wx * wx + wy * wy + wz * wz)
-                    wx /= dist
-                    wy /= dist
-                    wz /= dist
-                    inv = 1.0 / (dist * dist)
-                    e0, e1, e2 = lights[k, 4] * inv, lights[k, 5] * inv, lights[k, 6] * inv
+                wx, wy, wz, dist, e0, e1, e2 = _light_at(lights, k, xx, xy, xz)
+                if has_surfaces:
+                    ts, _ = surface_hit(xx, xy, xz, wx, wy, wz, 1e-9, surfaces)
+                    if ts < dist:
+                        continue
                 ts, ps = intersect(xx, xy, xz, wx, wy, wz, 1e-9, dist, prim, True, a, b, radius, left, right,
                                    bmin, bmax, start, count, stack)
                 if ps >= 0:
@@ -235,11 +323,13 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, ligh
 
 @njit(cache=True, parallel=True)
 def render_rows(row0, row1, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background,
-                max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, image):
-    """Render rows [row0, row1) into ``image`` (height, width, 3) float64, parallel over pixels."""
+                max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces, image):
+    """Render rows [row0, row1) into ``image`` (height, width, 3) float64, parallel over pixels (surfaces: see
+    :func:`trace_pixel`)."""
     n = (row1 - row0) * width
     for k in prange(n):
         i = row0 + k // width
         j = k % width
         trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background,
-                    max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, image[i, j])
+                    max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces,
+                    image[i, j])

@@ -12,7 +12,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from headsim.hair.render.bvh import CapsuleBVH, FibreAssembly
-from headsim.hair.render.renderer import Light, RenderOptions, camera_looking_at, render, save_png
+from headsim.hair.render.renderer import Light, RenderOptions, Surface, camera_looking_at, render, save_png
 from headsim.hair.render.scattering import MarschnerParams
 
 __all__ = ["render_frames"]
@@ -21,8 +21,10 @@ __all__ = ["render_frames"]
 def render_frames(frames: Sequence[np.ndarray], folder: str | Path, *, radius: float = 35e-6,
                   preset: str = "brown", width: int = 256, height: int = 256, spp: int = 8,
                   azimuth_deg: float = 30.0, elevation_deg: float = 10.0, min_pixels: float = 1.0,
-                  progress: Callable[[int, int], None] | None = None) -> list[Path]:
-    """Render each frame to ``folder/frame_XXXX.png`` with one camera framing all frames.
+                  progress: Callable[[int, int], None] | None = None,
+                  surfaces: Sequence[Surface] = ()) -> list[Path]:
+    """Render each frame to ``folder/frame_XXXX.png`` with one camera framing all frames' fibres; ``surfaces``
+    (e.g. the obstacle of a drape) are drawn with them.
 
     Parameters
     ----------
@@ -55,7 +57,7 @@ def render_frames(frames: Sequence[np.ndarray], folder: str | Path, *, radius: f
     for k, f in enumerate(frames):
         fibres = FibreAssembly(f.reshape(-1, 3), np.arange(0, f.size // 3 + 1, f.shape[1], dtype=np.int64),
                                drawn_radius)
-        result = render(CapsuleBVH.from_fibres(fibres), params, camera, lights, options)
+        result = render(CapsuleBVH.from_fibres(fibres), params, camera, lights, options, surfaces=surfaces)
         path = folder / f"frame_{k:04d}.png"
         save_png(path, result.image, 2.0)
         paths.append(path)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -19,7 +19,7 @@ from headsim.hair.render import _kernels_trace as _k
 from headsim.hair.render.bvh import CapsuleBVH, FibreAssembly
 from headsim.hair.render.scattering import MarschnerParams
 
-__all__ = ["Camera", "Light", "RenderOptions", "RenderResult", "render", "camera_looking_at",
+__all__ = ["Camera", "Light", "RenderOptions", "RenderResult", "Surface", "render", "camera_looking_at",
            "to_srgb8", "save_png"]
 
 
@@ -98,6 +98,44 @@ class Light:
 
 
 @dataclass(frozen=True)
+class Surface:
+    """An opaque diffuse (Lambertian) surface drawn with the fibres: ``kind`` "sphere" (``point`` its centre, m,
+    ``size`` its radius, m) or "plane" (``point`` on it, ``normal``); ``albedo`` RGB in [0, 1]. It ends the paths
+    that reach it with its own radiance (the lights through shadow rays, plus albedo × the environment) and casts
+    shadows on the fibres; light it reflects onto the fibres is counted only where a scattered path ends on it."""
+
+    kind: str
+    point: tuple
+    size: float = 0.0
+    normal: tuple = (0.0, 1.0, 0.0)
+    albedo: tuple = (0.5, 0.5, 0.5)
+
+    def __post_init__(self):
+        if self.kind not in ("sphere", "plane"):
+            raise ParameterError(f"surface kind must be 'sphere' or 'plane', got {self.kind!r}")
+        p = np.asarray(self.point, dtype=np.float64)
+        n = np.asarray(self.normal, dtype=np.float64)
+        al = np.asarray(self.albedo, dtype=np.float64)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise ParameterError("surface point must be a finite 3-vector")
+        if al.shape != (3,) or not (np.all(al >= 0) and np.all(al <= 1)):
+            raise ParameterError(f"surface albedo must be 3 values in [0, 1], got {self.albedo}")
+        if self.kind == "sphere" and not (np.isfinite(self.size) and self.size > 0):
+            raise ParameterError(f"sphere radius must be > 0, got {self.size}")
+        if self.kind == "plane" and (n.shape != (3,) or not np.isfinite(n).all() or np.linalg.norm(n) == 0):
+            raise ParameterError("plane normal must be a finite non-zero 3-vector")
+
+    def row(self) -> np.ndarray:
+        """The kernel's row (:func:`headsim.hair.render._kernels_trace.surface_hit`)."""
+        if self.kind == "sphere":
+            shape = [0.0, *map(float, self.point), float(self.size), 0.0, 0.0]
+        else:
+            n = np.asarray(self.normal, dtype=np.float64)
+            shape = [1.0, *map(float, self.point), *(n / np.linalg.norm(n))]
+        return np.array(shape + list(map(float, self.albedo)))
+
+
+@dataclass(frozen=True)
 class RenderOptions:
     """width, height : pixels; spp : samples per pixel; max_scatter : fibre scattering orders (1–16);
     env : constant environment radiance RGB seen by scattered rays; background : RGB of camera misses;
@@ -149,8 +187,9 @@ def _mixture(params: MarschnerParams) -> np.ndarray:
 
 def render(fibres: FibreAssembly | CapsuleBVH, params: MarschnerParams, camera: Camera,
            lights: list[Light] | tuple[Light, ...], options: RenderOptions = RenderOptions(),
-           progress: Callable[[int, int], None] | None = None) -> RenderResult:
-    """Path-trace the fibres (Marschner far field, NEE with shadow rays, lobe importance sampling).
+           progress: Callable[[int, int], None] | None = None, surfaces: Sequence[Surface] = ()) -> RenderResult:
+    """Path-trace the fibres (Marschner far field, NEE with shadow rays, lobe importance sampling), with
+    ``surfaces`` (:class:`Surface`: e.g. the obstacle the fibres lie on) drawn as opaque diffuse surfaces.
 
     ``fibres`` may be a prebuilt :class:`CapsuleBVH` to render several frames of one assembly."""
     t0 = time.perf_counter()
@@ -168,12 +207,13 @@ def render(fibres: FibreAssembly | CapsuleBVH, params: MarschnerParams, camera: 
     mixp = _mixture(params)
     env = np.asarray(options.env, dtype=np.float64)
     bg = np.asarray(options.background, dtype=np.float64)
+    surface_rows = np.array([sf.row() for sf in surfaces], dtype=np.float64).reshape(-1, 10)
     t1 = time.perf_counter()
     c1 = time.process_time()
     for r0 in range(0, h, options.rows_per_block):
         r1 = min(h, r0 + options.rows_per_block)
         _k.render_rows(r0, r1, h, w, options.spp, options.seed, cam, prm, ztab, gtab, mixp, light_rows, env, bg,
-                       options.max_scatter, options.rr_depth, bool(options.near_field), *bvh.arrays, img)
+                       options.max_scatter, options.rr_depth, bool(options.near_field), *bvh.arrays, surface_rows, img)
         if progress is not None:
             progress(r1, h)
     wall = time.perf_counter() - t1
