@@ -58,10 +58,10 @@ def drape_cmd(
             files = write_drape(sc, res, tmp)
         files.append(write_drape_report(sc, res, tmp / "report.html"))
     ext, vol = bounding_box(res.polylines[-1])
-    # the median: the first steps of a fresh installation include the kernels' compilation
-    per_step = float(np.median(res.step_seconds)) if len(res.step_seconds) else 0.0
+    # the median: the first steps of a fresh installation include the kernels' compilation (a scene has ≥ 1 step)
+    per_step = float(np.median(res.step_seconds))
     typer.echo(f"{sc.description}: {sc.n_steps} steps of {dt:g} s, median {per_step:.3g} s/step (first step "
-               f"{res.step_seconds[0] if len(res.step_seconds) else 0.0:.3g} s); final bounding box "
+               f"{res.step_seconds[0]:.3g} s); final bounding box "
                f"{ext[0] * 100:.2f} × {ext[1] * 100:.2f} × {ext[2] * 100:.2f} cm = {vol * 1e6:.1f} cm³, "
                f"max penetration {res.max_penetration.max() * 1e6:.1f} µm, max joint gap "
                f"{res.max_joint_gap.max() * 1e6:.2f} µm; wrote {len(files)} files to {out}")

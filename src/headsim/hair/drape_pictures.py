@@ -50,6 +50,15 @@ def _cm(axis):
     axis.set_major_formatter(FuncFormatter(lambda v, _: f"{100.0 * v:.0f}"))
 
 
+def view_box(polylines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) corners, m, of the cube that holds every recorded frame's fibres with a 10 % margin: the view
+    of the frames and of the report's 3-D figure."""
+    allp = np.asarray(polylines).reshape(-1, 3)
+    lo, hi = allp.min(0), allp.max(0)
+    mid, span = 0.5 * (lo + hi), 0.55 * float((hi - lo).max()) + 1e-6
+    return mid - span, mid + span
+
+
 def faces_in_box(vertices: np.ndarray, triangles: np.ndarray, lower, upper) -> np.ndarray:
     """The triangles (T', 3) whose three vertices lie in the box [lower, upper] (m): the part of the obstacle
     a frame shows."""
@@ -73,13 +82,11 @@ def write_frames(folder: Path, name: str, times: np.ndarray, polylines: np.ndarr
     folder = Path(folder)
     folder.mkdir()
     F = polylines.shape[1]
-    allp = polylines.reshape(-1, 3)
-    lo, hi = allp.min(0), allp.max(0)
-    mid, span = 0.5 * (lo + hi), 0.55 * float((hi - lo).max()) + 1e-6
+    lower, upper = view_box(polylines)
     tris = None
     if obstacle_mesh is not None:
         v, t = obstacle_mesh
-        shown = faces_in_box(v, t, mid - span, mid + span)
+        shown = faces_in_box(v, t, lower, upper)
         if len(shown):
             tris = v[shown][:, :, [0, 2, 1]]  # plotted as (x, z, y): y is the picture's vertical
     sub = max(1, F // 150)
@@ -92,9 +99,9 @@ def write_frames(folder: Path, name: str, times: np.ndarray, polylines: np.ndarr
                                                  zorder=1))
         for q in polylines[k][::sub]:
             a3.plot(q[:, 0], q[:, 2], q[:, 1], color="saddlebrown", lw=0.5, zorder=2)
-        a3.set_xlim(mid[0] - span, mid[0] + span)
-        a3.set_ylim(mid[2] - span, mid[2] + span)
-        a3.set_zlim(mid[1] - span, mid[1] + span)
+        a3.set_xlim(lower[0], upper[0])
+        a3.set_ylim(lower[2], upper[2])
+        a3.set_zlim(lower[1], upper[1])
         a3.set_box_aspect((1, 1, 1))
         for axis, label in ((a3.xaxis, "x [cm]"), (a3.yaxis, "z [cm]"), (a3.zaxis, "y [cm]")):
             _cm(axis)

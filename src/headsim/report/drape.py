@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from headsim.hair.drape import DrapeResult, DrapeScene, bounding_box
-from headsim.hair.drape_pictures import faces_in_box
+from headsim.hair.drape_pictures import faces_in_box, view_box
 from headsim.report.html import write_html_report
 
 __all__ = ["drape_numbers", "drape_figure", "statistics_figure", "write_drape_report"]
@@ -55,13 +55,11 @@ def drape_figure(scene: DrapeScene, result: DrapeResult):
 
     F = result.polylines.shape[1]
     stride = max(1, -(-F // MAX_FIBRES_SHOWN))
-    allp = result.polylines.reshape(-1, 3)
-    lo, hi = allp.min(0), allp.max(0)
-    mid, span = 0.5 * (lo + hi), 0.55 * float((hi - lo).max()) + 1e-6
+    lower, upper = view_box(result.polylines)
     traces = []
     if scene.obstacle_mesh is not None:
         v, t = scene.obstacle_mesh
-        shown = faces_in_box(v, t, mid - span, mid + span)
+        shown = faces_in_box(v, t, lower, upper)
         if len(shown):
             used, inv = np.unique(shown, return_inverse=True)
             w = v[used] * CM
@@ -83,7 +81,7 @@ def drape_figure(scene: DrapeScene, result: DrapeResult):
     steps = [dict(method="animate", label=f"{result.times[k]:.3f}",
                   args=[[str(k)], dict(mode="immediate", frame=dict(duration=0, redraw=True),
                                        transition=dict(duration=0))]) for k in range(len(result.times))]
-    box = [[(mid[i] - span) * CM, (mid[i] + span) * CM] for i in range(3)]
+    box = [[lower[i] * CM, upper[i] * CM] for i in range(3)]
     fig.update_layout(
         height=650, margin=dict(l=0, r=0, t=30, b=0), legend=dict(x=0, y=1),
         sliders=[dict(active=last, steps=steps, currentvalue=dict(prefix="t = ", suffix=" s"), pad=dict(t=10))],
