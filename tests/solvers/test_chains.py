@@ -1541,3 +1541,24 @@ def test_a_pair_whose_axes_pass_through_each_other_keeps_its_side():
     assert height == pytest.approx(2 * R_FIBRE, rel=0.05)
     height = _crossing_axes(persistent=False)
     assert height < -2 * R_FIBRE
+
+
+def test_anchored_roots_closer_than_a_diameter_are_refused():
+    """Two anchored fibres whose roots lie closer than a fibre diameter would start overlapping where their
+    anchors hold them (no motion of the chains separates them): refused with both fibres named. Roots exactly a
+    diameter apart (touching), or close roots of free fibres, are accepted."""
+    def pair(dx, anchored=True):
+        a = np.array([[0.0, 0.0, 0.0], [0.0, -0.005, 0.0], [0.0, -0.010, 0.0]])
+        b = a + [dx, 0.0, 0.0]
+        c = a + [1e-3, 0.0, 0.0]
+        return chain_model_from_polylines(np.concatenate([a, c, b]), [0, 3, 6, 9], radius=R_FIBRE,
+                                          anchored=anchored)
+
+    with pytest.raises(ParameterError, match=r"fibres 0 and 2, 42\.\d µm apart"):
+        pair(42.4e-6)
+    model, _ = pair(2 * R_FIBRE)
+    assert model.n_fibres == 3
+    model, _ = pair(10e-6, anchored=False)
+    assert model.n_fibres == 3
+    model, _ = pair(10e-6, anchored=[True, True, False])  # one of the two is free: it can move away
+    assert model.n_fibres == 3

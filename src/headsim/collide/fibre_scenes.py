@@ -135,7 +135,7 @@ def loop_frames(n_fibres: int = 150, segments_per_fibre: int = 100, n_steps: int
 
 
 def scalp_roots(vertices, triangles, n_roots: int | None = None, *, density: float = ROOT_DENSITY,
-                hairline_z: float = 0.06, seed: int = 0):
+                hairline_z: float = 0.06, seed: int = 0, min_spacing: float = 0.0):
     """Sample hair roots on the scalp of a head mesh (y up, +z forward, metres).
 
     The scalp is the set of triangles whose centroid lies behind ``hairline_z`` and above a height
@@ -143,6 +143,14 @@ def scalp_roots(vertices, triangles, n_roots: int | None = None, *, density: flo
     the cut is at the ears' height, 55 % of the way up from the lowest to the highest vertex).
     Returns roots (n, 3) m and their outward unit normals (n, 3); roots are sorted by azimuth and
     height so consecutive roots are neighbours.
+
+    ``min_spacing`` (m, default 0: independent uniform samples, as before): no two roots closer than this
+    (dart throwing: area-uniform candidates, each kept when no kept root lies within ``min_spacing``).
+    Independent samples put some roots closer than a fibre diameter (300 roots at 325 /cm²: 14 µm
+    apart, against 70 µm fibres): fibres anchored there start overlapping at their roots, where no
+    motion can separate them. Raises ParameterError when the scalp cannot hold ``n_roots`` roots that
+    far apart (random sequential packing saturates at ≈ 0.55 of the area covered by disks of diameter
+    ``min_spacing``).
     """
     v = np.asarray(vertices, float)
     t = np.asarray(triangles, np.int64)
@@ -165,18 +173,67 @@ def scalp_roots(vertices, triangles, n_roots: int | None = None, *, density: flo
     scalp = behind & (cen[:, 1] >= y_cut)
     total = area[scalp].sum()
     n = int(round(total * density)) if n_roots is None else int(n_roots)
+    if not (np.isfinite(min_spacing) and min_spacing >= 0):
+        raise ParameterError(f"min_spacing must be a finite length ≥ 0 m, got {min_spacing!r}")
     rng = np.random.default_rng(seed)
     ids = np.nonzero(scalp)[0]
-    tri = rng.choice(ids, n, p=area[ids] / total)
-    u, w = rng.uniform(size=(2, n))
-    flip = u + w > 1
-    u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
-    roots = a[tri] + u[:, None] * (b[tri] - a[tri]) + w[:, None] * (c[tri] - a[tri])
-    normals = nrm[tri]
+
+    def sample(k):
+        tri = rng.choice(ids, k, p=area[ids] / total)
+        u, w = rng.uniform(size=(2, k))
+        flip = u + w > 1
+        u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
+        return a[tri] + u[:, None] * (b[tri] - a[tri]) + w[:, None] * (c[tri] - a[tri]), nrm[tri]
+
+    if min_spacing > 0:
+        roots, normals = _spaced_samples(sample, n, float(min_spacing), total)
+    else:
+        roots, normals = sample(n)
     az = np.arctan2(roots[:, 0], roots[:, 2])
     band = np.floor((roots[:, 1] - roots[:, 1].min()) / 0.01).astype(int)
     order = np.lexsort((az * np.where(band % 2 == 0, 1, -1), band))
     return roots[order], normals[order]
+
+
+_NEIGHBOUR_CELLS = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
+
+
+def _has_neighbour(grid, points, p, cell, s2: float) -> bool:
+    """Whether a point of ``points`` listed in ``grid`` (cell → indices, cells of edge √s2) lies within √s2
+    of p (in cell ``cell``)."""
+    for dx, dy, dz in _NEIGHBOUR_CELLS:
+        for j in grid.get((cell[0] + dx, cell[1] + dy, cell[2] + dz), ()):
+            d = p - points[j]
+            if d @ d < s2:
+                return True
+    return False
+
+
+def _spaced_samples(sample, n: int, spacing: float, area: float, max_candidates_per_root: int = 40):
+    """n of the points drawn by ``sample(k) -> (points (k, 3), normals (k, 3))``, none two closer than
+    ``spacing`` (m): dart throwing, candidates tested in their drawn order against the kept ones in a hash
+    grid of cell ``spacing``. ``area``: the sampled area, m² (for the error message)."""
+    kept_p, kept_n = [], []
+    grid: dict[tuple[int, int, int], list[int]] = {}
+    drawn = 0
+    s2 = spacing * spacing
+    while len(kept_p) < n:
+        if drawn >= max_candidates_per_root * n:
+            raise ParameterError(
+                f"the scalp ({area * 1e4:.3g} cm²) cannot hold {n} roots at least {spacing * 1e3:.3g} mm apart "
+                f"(placed {len(kept_p)} after {drawn} candidates); lower min_spacing or the number of roots")
+        k = max(64, 2 * (n - len(kept_p)))
+        pts, nrs = sample(k)
+        drawn += k
+        for p, nr in zip(pts, nrs):
+            cell = np.floor(p / spacing).astype(np.int64)
+            if not _has_neighbour(grid, kept_p, p, cell, s2):
+                grid.setdefault(tuple(cell), []).append(len(kept_p))
+                kept_p.append(p)
+                kept_n.append(nr)
+                if len(kept_p) == n:
+                    break
+    return np.array(kept_p), np.array(kept_n)
 
 
 def head_field_band(layer_thickness: float = 0.04, radius: float = 35e-6) -> float:

@@ -17,8 +17,8 @@ and listed in every scene's ``description``):
 * ``plane`` (§8.6.4): a horizontal helical strand (seed: 250 × 100) onto a 22.5° inclined plane.
 * ``terrain`` (§8.6.3): the vertical helical strand onto a bumpy terrain (grid distance field of a
   height-field mesh, solid below the surface).
-* ``head``: fibres rooted on the scalp of the bundled head, draping under gravity against the head's
-  narrow-band distance field.
+* ``head``: fibres rooted on the scalp of the bundled head (325 roots/cm², none two closer than 0.28 mm),
+  draping under gravity against the head's narrow-band distance field.
 
 Friction (``friction``): ``aniso`` — with / against the scales and across from the keratin table
 (wool/wool static dry, Schwartz & Knowles via Sobottka Tab. 2.11: 0.13 / 0.61 / 0.21; the only
@@ -398,14 +398,16 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
     else:  # head
         import trimesh
 
-        from headsim.collide.fibre_scenes import scalp_roots
+        from headsim.collide.fibre_scenes import ROOT_DENSITY, scalp_roots
         from headsim.data import head_path
 
         F, n = n_fibres or 300, segments or 30
         length = min(length, 0.15)
         hm = trimesh.load(head_path(), process=False)
         v, t = np.asarray(hm.vertices, float), np.asarray(hm.faces, np.int64)
-        roots, normals = scalp_roots(v, t, F, seed=seed)
+        # roots at the seed's density (325 /cm²) with no two closer than half its mean spacing (0.28 mm):
+        # independent samples put anchored roots closer than a fibre diameter, an overlap no motion removes
+        roots, normals = scalp_roots(v, t, F, seed=seed, min_spacing=0.5 / np.sqrt(ROOT_DENSITY))
         fld = GridDistanceField.from_mesh(v, t, 0.003, band=0.012)
         polys = []
         for p0, nr in zip(roots, normals):

@@ -284,6 +284,7 @@ def chain_model_from_polylines(nodes, fibre_offsets, *, radius: float = 35e-6, d
     Kj = stiffness_scale * np.stack([EI / lj, EI / lj, GJ / lj], axis=1)
     root_frame = rot[seg_off[:-1]].copy()
     root_point = pos[seg_off[:-1]] - half[seg_off[:-1], None] * rot[seg_off[:-1], :, 2]
+    _check_anchored_roots_apart(root_point[anch], float(radius), np.nonzero(anch)[0])
     rest = np.zeros((S, 3))
     if rest_shape == "initial":
         Rk = np.where(is_root[:, None, None], root_frame[np.repeat(np.arange(F), np.diff(seg_off))],
@@ -293,6 +294,26 @@ def chain_model_from_polylines(nodes, fibre_offsets, *, radius: float = 35e-6, d
                        np.full(S, float(joint_damping)))
     state = ChainState(pos, rot, np.zeros((S, 3)), np.zeros((S, 3)), 0.0)
     return model, state
+
+
+def _check_anchored_roots_apart(roots: np.ndarray, radius: float, fibre_ids: np.ndarray) -> None:
+    """ParameterError when two anchored roots (m) lie closer than a fibre diameter 2 ``radius``: their root
+    segments would start overlapping where no motion of the chains can separate them (the anchors hold both
+    ends), and the contact solves would push against the anchors for ever (measured: a 42 µm pair of the former
+    head-scene roots spun its root segments up until the run diverged at t = 0.41 s)."""
+    if len(roots) < 2:
+        return
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(roots).query_pairs(2.0 * radius, output_type="ndarray")
+    d = np.linalg.norm(roots[pairs[:, 0]] - roots[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
+    pairs, d = pairs[d < 2.0 * radius], d[d < 2.0 * radius]  # touching roots (exactly a diameter apart) are fine
+    if len(pairs):
+        i = int(np.argmin(d))
+        a, b = fibre_ids[pairs[i, 0]], fibre_ids[pairs[i, 1]]
+        raise ParameterError(f"{len(pairs)} pair(s) of anchored fibre roots lie closer than the fibre diameter "
+                             f"{2e6 * radius:.4g} µm (closest: fibres {a} and {b}, {d[i] * 1e6:.3g} µm apart): their root "
+                             "segments would overlap where the anchors hold them; space the roots at least a diameter apart")
 
 
 def chain_state_from_polylines(model: ChainModel, nodes) -> ChainState:
