@@ -1562,3 +1562,28 @@ def test_anchored_roots_closer_than_a_diameter_are_refused():
     assert model.n_fibres == 3
     model, _ = pair(10e-6, anchored=[True, True, False])  # one of the two is free: it can move away
     assert model.n_fibres == 3
+
+
+@pytest.mark.parametrize("close", [True, False])
+def test_joint_gap_of_a_fibre_in_contact_is_closed_by_the_push_out(close):
+    """A fibre lying on a plane (every fibre with a contact row moves q^{i+1} = q^i + Δt u' under
+    ``end_velocity_positions``) with one segment lifted 20 µm off its neighbours: the split push-out closes the
+    two open joint gaps in one step (to second order: nm), ``close_joint_gaps=False`` keeps them at 20 µm for
+    ever (the velocity solve's joint rows only keep the anchors moving together)."""
+    n = 10
+    x = np.linspace(0.0, 0.02, n + 1)
+    nodes = np.stack([x, np.full(n + 1, R_FIBRE), np.zeros(n + 1)], 1)
+    model, rest = chain_model_from_polylines(nodes, [0, n + 1], radius=R_FIBRE, anchored=False)
+    pos = rest.position.copy()
+    pos[5, 1] += 20e-6
+    state = ChainState(pos, rest.rotation, rest.velocity, rest.angular_velocity, 0.0)
+    assert joint_gaps(model, state).max() == pytest.approx(20e-6)
+    solver = ChainSolver(ChainOptions(friction=FrictionLaw.isotropic(0.47), close_joint_gaps=close))
+    plane = [Obstacle(PlaneField((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)))]
+    for _ in range(5):
+        state = solver.step(model, state, 1e-3, plane)
+        if close:
+            assert joint_gaps(model, state).max() < 1e-3 * R_FIBRE  # below push_out_slop × r
+        else:
+            assert joint_gaps(model, state).max() == pytest.approx(20e-6, rel=1e-9)
+    assert solver.last_stats.max_penetration < 1e-3 * R_FIBRE

@@ -767,11 +767,7 @@ class ChainSolver:
         target relative anchor velocity −γ d_mid/(½Δt) (γ = ``joint_gap_fraction``; γ = 1 closes the
         mid-step gap d_mid by the step's end, γ = 0 keeps the anchors moving together)."""
         fib = model.segment_fibre
-        touched = KP.touched_fibres(rows.body, rows.partner, fib, model.n_fibres)
-        seg = np.nonzero(touched[fib])[0]
-        is_root = model.is_root[seg]
-        keep = ~is_root | model.anchored[fib[seg]]
-        seg, is_root = seg[keep].astype(np.int64), np.ascontiguousarray(is_root[keep])
+        seg, is_root = self._touched_joints(model, rows)
         n = len(seg)
         k, rk, rl, target = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
         C, w0 = np.empty((n, 3, 3)), np.empty((n, 3))
@@ -783,6 +779,42 @@ class ChainSolver:
             np.zeros((0, 6)) if u_minus is None else np.ascontiguousarray(u_minus),
             -float(self.options.joint_gap_fraction) / (0.5 * dt), spring_step * dt * dt, dt, k, rk, rl, target, C, w0)
         return k, seg, rk, rl, target, C, w0
+
+    @staticmethod
+    def _touched_joints(model, rows):
+        """(seg (n,) int64, is_root (n,) bool): the segments whose inner joint is a row of the coupled solve —
+        every segment of a fibre with a contact row or candidate (``rows``), less free roots — in the order of
+        :meth:`_joint_rows`."""
+        fib = model.segment_fibre
+        touched = KP.touched_fibres(rows.body, rows.partner, fib, model.n_fibres)
+        seg = np.nonzero(touched[fib])[0]
+        is_root = model.is_root[seg]
+        keep = ~is_root | model.anchored[fib[seg]]
+        return seg[keep].astype(np.int64), np.ascontiguousarray(is_root[keep])
+
+    def _joint_gap_push(self, model, rows, x, R, dt):
+        """(n, 3) m/s or None: joint targets of the split push-out that close the t_i joint gaps d^i of the
+        touched fibres (``ChainOptions.close_joint_gaps``) within the step, −d^i/Δt where ‖d^i‖ exceeds
+        ``push_out_slop`` × the radius, 0 elsewhere (rows in :meth:`_joint_rows` order); None when no gap does.
+        Under ``end_velocity_positions`` those fibres move q^{i+1} = q^i + Δt u, and the velocity solve's joint
+        rows (J u' = 0) keep their gaps as they were, so without this a gap that opened in one step stayed."""
+        seg, is_root = self._touched_joints(model, rows)
+        n = len(seg)
+        if not n:
+            return None
+        fib = np.ascontiguousarray(model.segment_fibre[seg])
+        k, rk, rl, target = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        C, w0 = np.empty((n, 3, 3)), np.empty((n, 3))
+        (FK.joint_rows_parallel if model.n_segments >= self.options.parallel_threshold else FK.joint_rows)(
+            seg, is_root, fib, np.ascontiguousarray(x), np.ascontiguousarray(R), model.half_length, model.root_point,
+            model.root_frame, model.joint_stiffness, model.joint_damping, np.zeros((0, 6)), -1.0 / dt, 0.0, 0.0,
+            k, rk, rl, target, C, w0)
+        slop = float(self.options.push_out_slop) * model.radius[seg] / dt  # as a closing speed
+        small = np.sqrt((target * target).sum(1)) <= slop
+        if small.all():
+            return None
+        target[small] = 0.0
+        return target
 
     def _half_step_projection(self, model, rows, lam, gaps0, x, R, x_mid, R_mid, vJ, wJ, dt):
         """(S, 6) twists of the last pass's first half step (``ChainOptions.half_step_projection``): the joint
@@ -819,11 +851,12 @@ class ChainSolver:
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
                   x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False,
-                  tol_scale=1.0, sweep_cap=None, extend_cap=True):
+                  tol_scale=1.0, sweep_cap=None, extend_cap=True, joint_target=None):
         """Contact stage for given row gaps (m) and penetration recovery β; returns u (S, 6). Coupled mode:
         ``sweep_cap``: the solve's sweep cap when below ``qp_iterations`` in a system too large for the sweep
         budget (``predictor_sweeps``, ``push_out_sweeps``; None: ``qp_iterations``); ``extend_cap`` False: late
-        promotions do not extend that cap (see ``predictor_extension``).
+        promotions do not extend that cap (see ``predictor_extension``). ``joint_target`` (n_j, 3) m/s: the joint
+        rows' targets instead of the pass's (:meth:`_joint_gap_push`).
         ``warm`` = (λ, friction) (primary rows) to start from; the solution is left in ``self._impulses``.
         Calls with the same ``rows`` and ``pass_key`` (the harmonisation pass: same mid-step state x_mid,
         R_mid, u⁻) share the joint rows and the kernel set-up (:func:`~headsim.solvers._kernels.chains_coupled.coupled_setup`)."""
@@ -878,6 +911,8 @@ class ChainSolver:
                     body_part = np.ascontiguousarray(fpart[sf])
                 ps = self._pass_setup = (rows, pass_key, joints, mass, inertia, setup, body_part)
             _, _, joints, mass, inertia, setup, body_part = ps
+            if joint_target is not None:  # the set-up does not depend on the joint targets
+                joints = joints[:4] + (np.ascontiguousarray(joint_target),) + joints[5:]
             kern = KC.coupled_iterate_parallel if par else KC.coupled_iterate
             cap, tol = int(o.qp_iterations), float(o.contact_tolerance)
             n_budget = self._budget_sweeps(len(pr) + len(joints[0]))
@@ -1376,7 +1411,10 @@ class ChainSolver:
                 last = it + 1 == o.harmonisation_iterations
                 beta_pos = o.penetration_recovery * (0.5 if endvel else 1.0)
                 push_impulses = None
-                if last and o.penetration_recovery > 0 and (gaps_pos < 0).any():
+                joint_push = None  # the touched fibres' t_i joint gaps, closed by the push-out (close_joint_gaps)
+                if last and endvel and o.close_joint_gaps and o.split_recovery and o.contact_coupling == "coupled":
+                    joint_push = self._joint_gap_push(model, rows, x, R, dt)
+                if last and o.penetration_recovery > 0 and ((gaps_pos < 0).any() or joint_push is not None):
                     # split impulse: the penetration push-out moves the positions but is not kept as velocity
                     # (only the last pass's is used: an earlier pass feeds the joints u_vel alone)
                     # its own previous impulses (kept only under push_out_warm_start), else the velocity solve's
@@ -1385,7 +1423,7 @@ class ChainSolver:
                                            Iwi, dt, np.zeros_like(lam), sweeps_box, x_mid, warm_pos, pass_key=it,
                                            joints_last=o.split_recovery and o.recovery_keeps_joints,
                                            u_spring=u_spring, spring_step=spring_step, budget=endvel,
-                                           sweep_cap=o.push_out_sweeps)
+                                           sweep_cap=o.push_out_sweeps, joint_target=joint_push)
                     push_impulses = self._impulses
                     pass_promoted += self._promoted
                 checks = [(u_vel, 0.0)] + ([(u_pos, beta_pos)] if u_pos is not u_vel else [])
