@@ -98,11 +98,70 @@ def _ray_box_entry(o0, o1, o2, d0, d1, d2, i0, i1, i2, lo, hi, tmax):
     return t0
 
 
+@njit(cache=True, inline="always")
+def first_hit_ray(o0, o1, o2, d0, d1, d2, tmin, tmax, tri_coords, order, node_child, node_start, node_count,
+                  node_lo, node_hi, stack, stack_t):
+    """Nearest hit t ∈ [tmin, tmax] of one ray o + t d (front-to-back, pruned traversal; the tie rule of the
+    module). stack, stack_t: work arrays of the tree's stack size. Returns (t, triangle id, u, v): (inf, −1, 0, 0)
+    on a miss; u, v the barycentric weights of the triangle's vertices 1 and 2."""
+    i0 = 1.0 / d0 if d0 != 0.0 else 0.0
+    i1 = 1.0 / d1 if d1 != 0.0 else 0.0
+    i2 = 1.0 / d2 if d2 != 0.0 else 0.0
+    best = np.inf
+    best_tri = -1
+    bu = 0.0
+    bv = 0.0
+    top = 0
+    t_root = _ray_box_entry(o0, o1, o2, d0, d1, d2, i0, i1, i2, node_lo[0], node_hi[0], tmax)
+    if t_root < np.inf:
+        stack[0] = 0
+        stack_t[0] = t_root
+        top = 1
+    while top > 0:
+        top -= 1
+        if stack_t[top] > best:
+            continue
+        node = stack[top]
+        c = node_child[node]
+        if c < 0:
+            for k in range(node_start[node], node_start[node] + node_count[node]):
+                t, u, v = moller_trumbore(o0, o1, o2, d0, d1, d2, tri_coords[k, 0], tri_coords[k, 1], tri_coords[k, 2])
+                if t >= tmin and t <= tmax:
+                    if t < best or (t == best and order[k] < best_tri):
+                        best = t
+                        best_tri = order[k]
+                        bu = u
+                        bv = v
+        else:
+            lim = min(tmax, best)
+            tl = _ray_box_entry(o0, o1, o2, d0, d1, d2, i0, i1, i2, node_lo[c], node_hi[c], lim)
+            tr = _ray_box_entry(o0, o1, o2, d0, d1, d2, i0, i1, i2, node_lo[c + 1], node_hi[c + 1], lim)
+            if tl <= tr:
+                if tr < np.inf:
+                    stack[top] = c + 1
+                    stack_t[top] = tr
+                    top += 1
+                if tl < np.inf:
+                    stack[top] = c
+                    stack_t[top] = tl
+                    top += 1
+            else:
+                if tl < np.inf:
+                    stack[top] = c
+                    stack_t[top] = tl
+                    top += 1
+                if tr < np.inf:
+                    stack[top] = c + 1
+                    stack_t[top] = tr
+                    top += 1
+    return best, best_tri, bu, bv
+
+
 @njit(cache=True, parallel=True)
 def first_hits_bvh(origins, directions, max_distance, tri_coords, order, node_child,
                    node_start, node_count, node_lo, node_hi, stack_size,
                    out_distance, out_triangle, out_u, out_v):
-    """Nearest hit of every ray within [0, max_distance[i]] (front-to-back, pruned traversal).
+    """Nearest hit of every ray within [0, max_distance[i]] (:func:`first_hit_ray`).
 
     origins, directions (q, 3) float64 (m; directions unit length); max_distance (q,) m.
     Outputs: out_distance (q,) m (inf on a miss), out_triangle (q,) int64 (-1 on a miss),
@@ -114,68 +173,14 @@ def first_hits_bvh(origins, directions, max_distance, tri_coords, order, node_ch
         stack = np.empty(stack_size, np.int64)
         stack_t = np.empty(stack_size)
         for i in range(chunk * CHUNK, min(q, (chunk + 1) * CHUNK)):
-            o0 = origins[i, 0]
-            o1 = origins[i, 1]
-            o2 = origins[i, 2]
-            d0 = directions[i, 0]
-            d1 = directions[i, 1]
-            d2 = directions[i, 2]
-            i0 = 1.0 / d0 if d0 != 0.0 else 0.0
-            i1 = 1.0 / d1 if d1 != 0.0 else 0.0
-            i2 = 1.0 / d2 if d2 != 0.0 else 0.0
-            tmax = max_distance[i]
-            best = np.inf
-            best_tri = -1
-            bu = 0.0
-            bv = 0.0
-            top = 0
-            t_root = _ray_box_entry(o0, o1, o2, d0, d1, d2, i0, i1, i2, node_lo[0], node_hi[0], tmax)
-            if t_root < np.inf:
-                stack[0] = 0
-                stack_t[0] = t_root
-                top = 1
-            while top > 0:
-                top -= 1
-                if stack_t[top] > best:
-                    continue
-                node = stack[top]
-                c = node_child[node]
-                if c < 0:
-                    for k in range(node_start[node], node_start[node] + node_count[node]):
-                        t, u, v = moller_trumbore(o0, o1, o2, d0, d1, d2,
-                                                  tri_coords[k, 0], tri_coords[k, 1], tri_coords[k, 2])
-                        if t >= 0.0 and t <= tmax:
-                            if t < best or (t == best and order[k] < best_tri):
-                                best = t
-                                best_tri = order[k]
-                                bu = u
-                                bv = v
-                else:
-                    lim = min(tmax, best)
-                    tl = _ray_box_entry(o0, o1, o2, d0, d1, d2, i0, i1, i2, node_lo[c], node_hi[c], lim)
-                    tr = _ray_box_entry(o0, o1, o2, d0, d1, d2, i0, i1, i2, node_lo[c + 1], node_hi[c + 1], lim)
-                    if tl <= tr:
-                        if tr < np.inf:
-                            stack[top] = c + 1
-                            stack_t[top] = tr
-                            top += 1
-                        if tl < np.inf:
-                            stack[top] = c
-                            stack_t[top] = tl
-                            top += 1
-                    else:
-                        if tl < np.inf:
-                            stack[top] = c
-                            stack_t[top] = tl
-                            top += 1
-                        if tr < np.inf:
-                            stack[top] = c + 1
-                            stack_t[top] = tr
-                            top += 1
-            out_distance[i] = best
-            out_triangle[i] = best_tri
-            out_u[i] = bu
-            out_v[i] = bv
+            t, tri, u, v = first_hit_ray(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0],
+                                         directions[i, 1], directions[i, 2], 0.0, max_distance[i], tri_coords,
+                                         order, node_child, node_start, node_count, node_lo, node_hi, stack,
+                                         stack_t)
+            out_distance[i] = t
+            out_triangle[i] = tri
+            out_u[i] = u
+            out_v[i] = v
 
 
 @njit(cache=True, parallel=True)

@@ -250,6 +250,20 @@ class TriangleBVH:
         """(2, 3) float64, m: the root box (slightly padded)."""
         return np.stack([self._node_lo[0], self._node_hi[0]])
 
+    @property
+    def ray_arrays(self) -> tuple:
+        """The arrays of :func:`headsim.collide._kernels_ray.first_hit_ray` (tri_coords, order, node_child,
+        node_start, node_count, node_lo, node_hi) and the stack size its work arrays need, for kernels that
+        trace single rays through this tree (e.g. the hair renderer's surfaces). Read-only views."""
+        arrays = (self._tri_coords, self._order, self._node_child, self._node_start, self._node_count,
+                  self._node_lo, self._node_hi)
+        views = []
+        for a in arrays:
+            v = a.view()
+            v.flags.writeable = False
+            views.append(v)
+        return (*views, int(self._stack_size))
+
     def triangle_normals(self, triangle_ids) -> np.ndarray:
         """(k, 3) unit normals of the given triangles (winding orientation; zero for degenerate)."""
         tri = self._triangles[np.asarray(triangle_ids, dtype=np.int64)]

@@ -449,9 +449,10 @@ def volume_stability(result: DrapeResult, window: float) -> tuple[float, float]:
 
 
 def render_surfaces(scene: DrapeScene) -> list:
-    """The scene's analytic obstacles (spheres, planes; at their iso-level) as surfaces of the path-traced frames
-    (:class:`headsim.hair.render.Surface`); the grid-field obstacles (terrain, head) are not drawn there."""
-    from headsim.hair.render import Surface
+    """The scene's obstacles as surfaces of the path-traced frames: the spheres and planes analytic, at their
+    iso-level (:class:`headsim.hair.render.Surface`), the grid-field obstacles (terrain, head) as the scene's picture
+    mesh (:class:`headsim.hair.render.MeshSurface`; the terrain's 0.1 mm iso-level offset is not drawn)."""
+    from headsim.hair.render import MeshSurface, Surface
 
     out = []
     for ob in scene.obstacles:
@@ -463,6 +464,9 @@ def render_surfaces(scene: DrapeScene) -> list:
             n = np.asarray(f.normal_vector, float) / np.linalg.norm(f.normal_vector)
             out.append(Surface("plane", tuple(np.asarray(f.point, float) + ob.level * n), normal=tuple(n),
                                albedo=OBSTACLE_ALBEDO))
+        elif scene.obstacle_mesh is not None:
+            v, t = scene.obstacle_mesh
+            out.append(MeshSurface(np.asarray(v, float), np.asarray(t, np.int64), albedo=OBSTACLE_ALBEDO))
     return out
 
 

@@ -6,6 +6,7 @@ from headsim.hair.render.bvh import CapsuleBVH, FibreAssembly
 from headsim.hair.render.renderer import (
     Camera,
     Light,
+    MeshSurface,
     RenderOptions,
     RenderResult,
     Surface,
@@ -35,6 +36,7 @@ __all__ = [
     "FurnaceResult",
     "Light",
     "MarschnerParams",
+    "MeshSurface",
     "RenderOptions",
     "RenderResult",
     "Surface",

@@ -7,6 +7,13 @@ from the lobes' longitudinal Gaussians (defensive mixture, φ uniform); rays esc
 the constant environment. Russian roulette from path segment ``rr_depth`` on (Mitsuba's rule,
 q = min(max throughput, 0.95); unbiased). Lights: ``lights`` (L, 7) rows [kind, x, y, z, r, g, b] with kind 0 =
 directional (x,y,z toward the light, rgb irradiance W/m²) and kind 1 = point (position m, rgb intensity W/sr).
+
+Opaque diffuse surfaces: analytic rows ``surfaces`` (:func:`surface_hit`) and one triangle ``mesh``, a tuple
+(tri_coords, order, node_child, node_start, node_count, node_lo, node_hi: the arrays of
+:func:`headsim.collide._kernels_ray.first_hit_ray`; corner_normals (m, 3, 3) unit vertex normals of every triangle's
+corners, geometric (m, 3) unit face normals and albedo (m, 3), by triangle id; stack_size (1,) int64); no
+triangles: no mesh. A hit is (t, k, u, v) (:func:`scene_hit`): k ≥ 0 an analytic row, k ≤ −2 triangle −2 − k at
+barycentric weights u, v of its vertices 1 and 2, −1 none.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from headsim.collide._kernels_ray import first_hit_ray
 from headsim.hair.render._kernels_bvh import _STACK, intersect
 from headsim.hair.render._kernels_scattering import far_field, gauss, near_field
 
@@ -144,30 +152,70 @@ def surface_hit(ox, oy, oz, dx, dy, dz, tmin, surfaces):
 
 
 @njit(cache=True)
-def _shade_surface(k, xx, xy, xz, dx, dy, dz, surfaces, lights, env, a, b, radius, left, right, bmin, bmax, start,
-                   count, stack, out):
-    """Radiance (3,) leaving the diffuse surface row k at x towards −d: Lambert, ρ/π Σ_lights E cos⁺ with shadow
-    rays through the fibres and the other surfaces, plus ρ × env (a uniform environment seen from an open surface,
-    exact for a lone sphere or plane; the fibres' shading of the environment is not counted)."""
-    if surfaces[k, 0] == 0.0:
-        nx = (xx - surfaces[k, 1]) / surfaces[k, 4]
-        ny = (xy - surfaces[k, 2]) / surfaces[k, 4]
-        nz = (xz - surfaces[k, 3]) / surfaces[k, 4]
+def scene_hit(ox, oy, oz, dx, dy, dz, tmin, surfaces, mesh, mstack, mstack_t):
+    """Nearest opaque-surface hit t > tmin of the ray o + t d (d unit): the analytic rows (:func:`surface_hit`)
+    and the mesh's triangles (t ≥ tmin). Returns (t, k, u, v) as the module docstring says; (inf, −1, 0, 0): none."""
+    t, k = surface_hit(ox, oy, oz, dx, dy, dz, tmin, surfaces)
+    if mesh[1].shape[0] > 0:
+        tm, tri, u, v = first_hit_ray(ox, oy, oz, dx, dy, dz, tmin, t, mesh[0], mesh[1], mesh[2], mesh[3], mesh[4],
+                                      mesh[5], mesh[6], mstack, mstack_t)
+        if tri >= 0 and tm < t:
+            return tm, -2 - tri, u, v
+    return t, k, 0.0, 0.0
+
+
+@njit(cache=True)
+def _surface_at(k, u, v, xx, xy, xz, dx, dy, dz, surfaces, mesh):
+    """Shading normal, geometric normal (both unit, on the side the ray o + t d comes from) and albedo of the hit
+    (k, u, v) at x: an analytic row's exact normal, a triangle's vertex normals interpolated at (u, v)."""
+    if k >= 0:
+        if surfaces[k, 0] == 0.0:
+            nx = (xx - surfaces[k, 1]) / surfaces[k, 4]
+            ny = (xy - surfaces[k, 2]) / surfaces[k, 4]
+            nz = (xz - surfaces[k, 3]) / surfaces[k, 4]
+        else:
+            nx, ny, nz = surfaces[k, 4], surfaces[k, 5], surfaces[k, 6]
+        gx, gy, gz = nx, ny, nz
+        r, g, b = surfaces[k, 7], surfaces[k, 8], surfaces[k, 9]
     else:
-        nx, ny, nz = surfaces[k, 4], surfaces[k, 5], surfaces[k, 6]
-    if nx * dx + ny * dy + nz * dz > 0.0:  # the side the ray comes from
+        tri = -2 - k
+        cn = mesh[7]
+        w0 = 1.0 - u - v
+        nx = w0 * cn[tri, 0, 0] + u * cn[tri, 1, 0] + v * cn[tri, 2, 0]
+        ny = w0 * cn[tri, 0, 1] + u * cn[tri, 1, 1] + v * cn[tri, 2, 1]
+        nz = w0 * cn[tri, 0, 2] + u * cn[tri, 1, 2] + v * cn[tri, 2, 2]
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        gx, gy, gz = mesh[8][tri, 0], mesh[8][tri, 1], mesh[8][tri, 2]
+        if ln > 0.0:
+            nx, ny, nz = nx / ln, ny / ln, nz / ln
+        else:
+            nx, ny, nz = gx, gy, gz
+        r, g, b = mesh[9][tri, 0], mesh[9][tri, 1], mesh[9][tri, 2]
+    if gx * dx + gy * dy + gz * dz > 0.0:  # the side the ray comes from
+        gx, gy, gz = -gx, -gy, -gz
+    if nx * gx + ny * gy + nz * gz < 0.0:
         nx, ny, nz = -nx, -ny, -nz
-    out[0] = surfaces[k, 7] * env[0]
-    out[1] = surfaces[k, 8] * env[1]
-    out[2] = surfaces[k, 9] * env[2]
+    return nx, ny, nz, gx, gy, gz, r, g, b
+
+
+@njit(cache=True)
+def _shade_surface(k, u, v, xx, xy, xz, dx, dy, dz, surfaces, mesh, mstack, mstack_t, lights, env, a, b, radius,
+                   left, right, bmin, bmax, start, count, stack, out):
+    """Radiance (3,) leaving the diffuse surface hit (k, u, v) at x towards −d: Lambert, ρ/π Σ_lights E cos⁺ with
+    shadow rays through the fibres and the surfaces, plus ρ × env (a uniform environment seen from an open
+    surface, exact for a lone sphere or plane; the fibres' shading of the environment is not counted)."""
+    nx, ny, nz, gx, gy, gz, r0, r1, r2 = _surface_at(k, u, v, xx, xy, xz, dx, dy, dz, surfaces, mesh)
+    out[0] = r0 * env[0]
+    out[1] = r1 * env[1]
+    out[2] = r2 * env[2]
     for q in range(lights.shape[0]):
         wx, wy, wz, dist, e0, e1, e2 = _light_at(lights, q, xx, xy, xz)
         cos = nx * wx + ny * wy + nz * wz
         if cos <= 0.0:
             continue
-        # shadow rays start a hair's breadth off the surface
-        ox, oy, oz = xx + 1e-9 * nx, xy + 1e-9 * ny, xz + 1e-9 * nz
-        ts, _ = surface_hit(ox, oy, oz, wx, wy, wz, 0.0, surfaces)
+        # shadow rays start a hair's breadth off the surface (along its geometric normal)
+        ox, oy, oz = xx + 1e-9 * gx, xy + 1e-9 * gy, xz + 1e-9 * gz
+        ts, _, _, _ = scene_hit(ox, oy, oz, wx, wy, wz, 0.0, surfaces, mesh, mstack, mstack_t)
         if ts < dist:
             continue
         th, ph = intersect(ox, oy, oz, wx, wy, wz, 0.0, dist, -1, True, a, b, radius, left, right, bmin, bmax, start,
@@ -175,24 +223,26 @@ def _shade_surface(k, xx, xy, xz, dx, dy, dz, surfaces, lights, env, a, b, radiu
         if ph >= 0:
             continue
         f = cos / math.pi
-        out[0] += surfaces[k, 7] * f * e0
-        out[1] += surfaces[k, 8] * f * e1
-        out[2] += surfaces[k, 9] * f * e2
+        out[0] += r0 * f * e0
+        out[1] += r1 * f * e1
+        out[2] += r2 * f * e2
 
 
 @njit(cache=True)
 def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background, max_scatter,
-                rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces, out):
+                rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces, mesh, out):
     """Accumulate the mean radiance of pixel (i, j) over ``spp`` samples into ``out`` (3,).
 
-    cam (12,): position, forward, right·tan(fov_x/2), up·tan(fov_y/2). surfaces (k, 10): opaque diffuse
-    surfaces (:func:`surface_hit`; k = 0: fibres alone): a path that reaches one ends there with its radiance
+    cam (12,): position, forward, right·tan(fov_x/2), up·tan(fov_y/2). surfaces (k, 10), mesh: opaque diffuse
+    surfaces (module docstring; none: fibres alone): a path that reaches one ends there with its radiance
     (:func:`_shade_surface`), and they cast shadows on the fibres."""
     state = np.empty(1, np.uint64)
     lobes = np.empty((3, 3))
     stack = np.empty(_STACK, np.int64)
     srad = np.empty(3)
-    has_surfaces = surfaces.shape[0] > 0
+    has_surfaces = surfaces.shape[0] > 0 or mesh[1].shape[0] > 0
+    mstack = np.empty(mesh[10][0], np.int64)
+    mstack_t = np.empty(mesh[10][0])
     acc0 = 0.0
     acc1 = 0.0
     acc2 = 0.0
@@ -216,14 +266,15 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, ligh
         l2 = 0.0
         skip = -1
         for depth in range(max_scatter):
-            t_s, k_s = np.inf, -1
+            t_s, k_s, u_s, v_s = np.inf, -1, 0.0, 0.0
             if has_surfaces:
-                t_s, k_s = surface_hit(ox, oy, oz, dx, dy, dz, 1e-9, surfaces)
+                t_s, k_s, u_s, v_s = scene_hit(ox, oy, oz, dx, dy, dz, 1e-9, surfaces, mesh, mstack, mstack_t)
             t, prim = intersect(ox, oy, oz, dx, dy, dz, 1e-9, t_s, skip, False, a, b, radius, left, right,
                                 bmin, bmax, start, count, stack)
-            if prim < 0 and k_s >= 0:  # the path ends on a surface
-                _shade_surface(k_s, ox + t_s * dx, oy + t_s * dy, oz + t_s * dz, dx, dy, dz, surfaces, lights, env,
-                               a, b, radius, left, right, bmin, bmax, start, count, stack, srad)
+            if prim < 0 and k_s != -1:  # the path ends on a surface
+                _shade_surface(k_s, u_s, v_s, ox + t_s * dx, oy + t_s * dy, oz + t_s * dz, dx, dy, dz, surfaces, mesh,
+                               mstack, mstack_t, lights, env, a, b, radius, left, right, bmin, bmax, start, count,
+                               stack, srad)
                 l0 += b0 * srad[0]
                 l1 += b1 * srad[1]
                 l2 += b2 * srad[2]
@@ -266,7 +317,7 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, ligh
             for k in range(lights.shape[0]):
                 wx, wy, wz, dist, e0, e1, e2 = _light_at(lights, k, xx, xy, xz)
                 if has_surfaces:
-                    ts, _ = surface_hit(xx, xy, xz, wx, wy, wz, 1e-9, surfaces)
+                    ts, _, _, _ = scene_hit(xx, xy, xz, wx, wy, wz, 1e-9, surfaces, mesh, mstack, mstack_t)
                     if ts < dist:
                         continue
                 ts, ps = intersect(xx, xy, xz, wx, wy, wz, 1e-9, dist, prim, True, a, b, radius, left, right,
@@ -323,13 +374,13 @@ def trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, ligh
 
 @njit(cache=True, parallel=True)
 def render_rows(row0, row1, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background,
-                max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces, image):
-    """Render rows [row0, row1) into ``image`` (height, width, 3) float64, parallel over pixels (surfaces: see
-    :func:`trace_pixel`)."""
+                max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces, mesh, image):
+    """Render rows [row0, row1) into ``image`` (height, width, 3) float64, parallel over pixels (surfaces, mesh:
+    see :func:`trace_pixel`)."""
     n = (row1 - row0) * width
     for k in prange(n):
         i = row0 + k // width
         j = k % width
         trace_pixel(i, j, height, width, spp, seed, cam, prm, ztab, gtab, mixp, lights, env, background,
                     max_scatter, rr_depth, near, a, b, radius, left, right, bmin, bmax, start, count, surfaces,
-                    image[i, j])
+                    mesh, image[i, j])

@@ -19,8 +19,8 @@ from headsim.hair.render import _kernels_trace as _k
 from headsim.hair.render.bvh import CapsuleBVH, FibreAssembly
 from headsim.hair.render.scattering import MarschnerParams
 
-__all__ = ["Camera", "Light", "RenderOptions", "RenderResult", "Surface", "render", "camera_looking_at",
-           "to_srgb8", "save_png"]
+__all__ = ["Camera", "Light", "MeshSurface", "RenderOptions", "RenderResult", "Surface", "render",
+           "camera_looking_at", "to_srgb8", "save_png"]
 
 
 def _unit(v, name):
@@ -135,6 +135,65 @@ class Surface:
         return np.array(shape + list(map(float, self.albedo)))
 
 
+@dataclass(frozen=True, eq=False)
+class MeshSurface:
+    """An opaque diffuse (Lambertian) triangle mesh drawn with the fibres (e.g. a head or a terrain): ``vertices``
+    (n, 3) m, ``triangles`` (m, 3) vertex indices, ``albedo`` RGB in [0, 1]. Shaded with its vertex normals
+    (area-weighted face normals, interpolated across each triangle; either winding), otherwise as :class:`Surface`."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    albedo: tuple = (0.5, 0.5, 0.5)
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices, dtype=np.float64)
+        t = np.asarray(self.triangles)
+        al = np.asarray(self.albedo, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0 or not np.isfinite(v).all():
+            raise ParameterError(f"mesh surface vertices must be a non-empty finite (n, 3) array, got shape {v.shape}")
+        if (t.ndim != 2 or t.shape[1] != 3 or len(t) == 0 or not np.issubdtype(t.dtype, np.integer)
+                or t.min() < 0 or t.max() >= len(v)):
+            raise ParameterError(f"mesh surface triangles must be a non-empty (m, 3) array of vertex indices in "
+                                 f"[0, {len(v) - 1}]")
+        if al.shape != (3,) or not (np.all(al >= 0) and np.all(al <= 1)):
+            raise ParameterError(f"surface albedo must be 3 values in [0, 1], got {self.albedo}")
+
+
+def _kernel_mesh(meshes: Sequence[MeshSurface]) -> tuple:
+    """The tracer's ``mesh`` tuple (:mod:`headsim.hair.render._kernels_trace`) of all ``meshes`` in one tree
+    (empty arrays: none)."""
+    if not meshes:
+        return (np.zeros((0, 3, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)),
+                np.zeros((0, 3)), np.ones(1, np.int64))
+    from headsim.collide.bvh import TriangleBVH
+
+    vs, ts, albedo, corner, geo = [], [], [], [], []
+    n0 = 0
+    for m in meshes:
+        v = np.asarray(m.vertices, dtype=np.float64)
+        t = np.asarray(m.triangles, dtype=np.int64)
+        face = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])  # length: twice the area
+        vn = np.zeros_like(v)
+        for c in range(3):
+            np.add.at(vn, t[:, c], face)
+        length = np.linalg.norm(face, axis=1, keepdims=True)
+        g = np.divide(face, length, out=np.zeros_like(face), where=length > 0)
+        vlen = np.linalg.norm(vn, axis=1, keepdims=True)
+        vn = np.divide(vn, vlen, out=np.zeros_like(vn), where=vlen > 0)
+        corner.append(vn[t])
+        geo.append(g)
+        albedo.append(np.broadcast_to(np.asarray(m.albedo, dtype=np.float64), (len(t), 3)))
+        vs.append(v)
+        ts.append(t + n0)
+        n0 += len(v)
+    bvh = TriangleBVH(np.concatenate(vs), np.concatenate(ts))
+    *arrays, stack = bvh.ray_arrays
+    return (*(np.array(a) for a in arrays), np.ascontiguousarray(np.concatenate(corner)),
+            np.ascontiguousarray(np.concatenate(geo)), np.ascontiguousarray(np.concatenate(albedo)),
+            np.array([stack], np.int64))
+
+
 @dataclass(frozen=True)
 class RenderOptions:
     """width, height : pixels; spp : samples per pixel; max_scatter : fibre scattering orders (1–16);
@@ -187,9 +246,11 @@ def _mixture(params: MarschnerParams) -> np.ndarray:
 
 def render(fibres: FibreAssembly | CapsuleBVH, params: MarschnerParams, camera: Camera,
            lights: list[Light] | tuple[Light, ...], options: RenderOptions = RenderOptions(),
-           progress: Callable[[int, int], None] | None = None, surfaces: Sequence[Surface] = ()) -> RenderResult:
+           progress: Callable[[int, int], None] | None = None,
+           surfaces: Sequence[Surface | MeshSurface] = ()) -> RenderResult:
     """Path-trace the fibres (Marschner far field, NEE with shadow rays, lobe importance sampling), with
-    ``surfaces`` (:class:`Surface`: e.g. the obstacle the fibres lie on) drawn as opaque diffuse surfaces.
+    ``surfaces`` (:class:`Surface`, :class:`MeshSurface`: e.g. the obstacle the fibres lie on) drawn as opaque
+    diffuse surfaces.
 
     ``fibres`` may be a prebuilt :class:`CapsuleBVH` to render several frames of one assembly."""
     t0 = time.perf_counter()
@@ -207,13 +268,19 @@ def render(fibres: FibreAssembly | CapsuleBVH, params: MarschnerParams, camera: 
     mixp = _mixture(params)
     env = np.asarray(options.env, dtype=np.float64)
     bg = np.asarray(options.background, dtype=np.float64)
-    surface_rows = np.array([sf.row() for sf in surfaces], dtype=np.float64).reshape(-1, 10)
+    for sf in surfaces:
+        if not isinstance(sf, (Surface, MeshSurface)):
+            raise ParameterError(f"surfaces must be Surface or MeshSurface objects, got {type(sf).__name__}")
+    surface_rows = np.array([sf.row() for sf in surfaces if isinstance(sf, Surface)],
+                            dtype=np.float64).reshape(-1, 10)
+    mesh = _kernel_mesh([sf for sf in surfaces if isinstance(sf, MeshSurface)])
     t1 = time.perf_counter()
     c1 = time.process_time()
     for r0 in range(0, h, options.rows_per_block):
         r1 = min(h, r0 + options.rows_per_block)
         _k.render_rows(r0, r1, h, w, options.spp, options.seed, cam, prm, ztab, gtab, mixp, light_rows, env, bg,
-                       options.max_scatter, options.rr_depth, bool(options.near_field), *bvh.arrays, surface_rows, img)
+                       options.max_scatter, options.rr_depth, bool(options.near_field), *bvh.arrays, surface_rows, mesh,
+                       img)
         if progress is not None:
             progress(r1, h)
     wall = time.perf_counter() - t1
