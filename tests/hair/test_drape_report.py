@@ -26,6 +26,13 @@ def test_figure_holds_every_recorded_frame_and_the_obstacle_in_view(run):
     assert [t.type for t in fig.data] == ["mesh3d", "scatter3d"]
     assert len(fig.frames) == len(res.times) == 3
     assert len(fig.layout.sliders[0].steps) == 3
+    assert fig.layout.sliders[0].font.color is None  # few frames: the step labels are shown
+    # 31 frames (the CLI's default 30 + the start): the labels are hidden, the current time is not
+    from dataclasses import replace
+
+    many = replace(res, times=np.linspace(0, res.times[-1], 31), polylines=np.repeat(res.polylines[-1:], 31, axis=0))
+    sl = drape_figure(scene, many).layout.sliders[0]
+    assert len(sl.steps) == 31 and sl.font.color == "rgba(0,0,0,0)" and sl.currentvalue.prefix == "t = "
     for k, frame in enumerate(fig.frames):  # each frame's fibres, in cm, NaN between fibres
         q = np.column_stack([frame.data[0].x, frame.data[0].y, frame.data[0].z]).astype(float)
         pts = q[~np.isnan(q).any(1)]

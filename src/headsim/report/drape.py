@@ -14,6 +14,7 @@ from headsim.report.html import write_html_report
 
 __all__ = ["drape_numbers", "drape_figure", "statistics_figure", "write_drape_report"]
 
+MAX_SLIDER_LABELS = 10  # a slider with more frames hides its step labels (the current time stays shown)
 MAX_FIBRES_SHOWN = 60  # fibres drawn in the 3-D view (every k-th): the page stays a few MB for the full scene
 CM = 100.0
 
@@ -84,7 +85,9 @@ def drape_figure(scene: DrapeScene, result: DrapeResult):
     box = [[lower[i] * CM, upper[i] * CM] for i in range(3)]
     fig.update_layout(
         height=650, margin=dict(l=0, r=0, t=30, b=0), legend=dict(x=0, y=1),
-        sliders=[dict(active=last, steps=steps, currentvalue=dict(prefix="t = ", suffix=" s"), pad=dict(t=10))],
+        sliders=[dict(active=last, steps=steps, currentvalue=dict(prefix="t = ", suffix=" s"), pad=dict(t=10),
+                      # more than 10 frames: the step labels would run into each other; the current time is shown
+                      **(dict(font=dict(color="rgba(0,0,0,0)")) if len(steps) > MAX_SLIDER_LABELS else {}))],
         scene=dict(xaxis=dict(title="x [cm]", range=box[0]), yaxis=dict(title="y [cm]", range=box[1]),
                    zaxis=dict(title="z [cm]", range=box[2]), aspectmode="cube",
                    camera=dict(up=dict(x=0, y=1, z=0), eye=dict(x=1.2, y=0.9, z=1.5))))
