@@ -6,7 +6,7 @@ import pytest
 from PIL import Image
 
 from headsim.hair.drape import build_drape_scene, terrain_level
-from headsim.hair.drape_pictures import faces_in_box, plane_patch, write_frames
+from headsim.hair.drape_pictures import clip_to_box, plane_patch, write_frames
 
 
 @pytest.mark.parametrize("name", ["sphere-horizontal", "sphere-helical", "plane", "terrain"])
@@ -26,10 +26,23 @@ def test_picture_mesh_lies_on_the_obstacle_surface(name):
         assert np.abs(phi).max() < 1e-12
 
 
-def test_faces_in_box_keeps_the_triangles_inside():
-    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]])
-    t = np.array([[0, 1, 2], [0, 1, 3]])
-    assert faces_in_box(v, t, (-1, -1, -1), (2, 2, 2)).tolist() == [[0, 1, 2]]
+def test_clip_to_box_cuts_the_surface_at_the_box():
+    """A 4 × 4 square in y = 0 clipped to the box [−1, 1]³ is the 2 × 2 square (area 4, every vertex in the box,
+    its edge on the box's faces, not the triangles wholly inside: here none); a unit sphere clipped to the box
+    [0, 2]³ is its octant (area π/2 to the icosphere's resolution); a mesh outside the box leaves nothing."""
+    import trimesh
+
+    v = np.array([[-2.0, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2]])
+    t = np.array([[0, 2, 1], [0, 3, 2]])
+    cv, ct = clip_to_box(v, t, (-1, -1, -1), (1, 1, 1))
+    assert trimesh.Trimesh(cv, ct, process=False).area == pytest.approx(4.0, rel=1e-12)
+    assert (np.abs(cv) <= 1 + 1e-12).all() and ct.max() == len(cv) - 1
+    ico = trimesh.creation.icosphere(subdivisions=5)
+    sv, st = clip_to_box(ico.vertices, ico.faces, (0, 0, 0), (2, 2, 2))
+    assert trimesh.Trimesh(sv, st, process=False).area == pytest.approx(np.pi / 2, rel=2e-3)
+    assert (sv >= -1e-12).all()
+    ev, et = clip_to_box(v, t, (5, 5, 5), (6, 6, 6))
+    assert ev.shape == (0, 3) and et.shape == (0, 3)
 
 
 def _bluish_fraction(path):

@@ -59,11 +59,26 @@ def view_box(polylines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mid - span, mid + span
 
 
-def faces_in_box(vertices: np.ndarray, triangles: np.ndarray, lower, upper) -> np.ndarray:
-    """The triangles (T', 3) whose three vertices lie in the box [lower, upper] (m): the part of the obstacle
-    a frame shows."""
-    inside = np.all((vertices >= np.asarray(lower)) & (vertices <= np.asarray(upper)), axis=1)
-    return triangles[inside[triangles].all(axis=1)]
+def clip_to_box(vertices: np.ndarray, triangles: np.ndarray, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    """The part of a triangle mesh (vertices (n, 3) m, triangles (m, 3)) inside the box [lower, upper]: every
+    triangle cut by the box's six planes (trimesh's ``slice_faces_plane``), so the surface ends on the box instead of
+    at the last triangle wholly inside. Returns (vertices (n', 3), triangles (m', 3)), only the vertices used."""
+    from trimesh.intersections import slice_faces_plane
+
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    lower, upper = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    for axis in range(3):
+        for sign, bound in ((1.0, lower), (-1.0, upper)):
+            if not len(t):
+                return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+            normal = np.zeros(3)
+            normal[axis] = sign
+            origin = np.zeros(3)
+            origin[axis] = bound[axis]
+            v, t = slice_faces_plane(v, t, normal, origin)[:2]
+    used, inverse = np.unique(t, return_inverse=True)
+    return v[used], inverse.reshape(-1, 3).astype(np.int64)
 
 
 def write_frames(folder: Path, name: str, times: np.ndarray, polylines: np.ndarray,
@@ -85,10 +100,9 @@ def write_frames(folder: Path, name: str, times: np.ndarray, polylines: np.ndarr
     lower, upper = view_box(polylines)
     tris = None
     if obstacle_mesh is not None:
-        v, t = obstacle_mesh
-        shown = faces_in_box(v, t, lower, upper)
-        if len(shown):
-            tris = v[shown][:, :, [0, 2, 1]]  # plotted as (x, z, y): y is the picture's vertical
+        v, t = clip_to_box(*obstacle_mesh, lower, upper)
+        if len(t):
+            tris = v[t][:, :, [0, 2, 1]]  # plotted as (x, z, y): y is the picture's vertical
     sub = max(1, F // 150)
     files = []
     for k in range(len(times)):

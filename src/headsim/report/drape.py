@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from headsim.hair.drape import DrapeResult, DrapeScene, bounding_box
-from headsim.hair.drape_pictures import faces_in_box, view_box
+from headsim.hair.drape_pictures import clip_to_box, view_box
 from headsim.report.html import write_html_report
 
 __all__ = ["drape_numbers", "drape_figure", "statistics_figure", "write_drape_report"]
@@ -59,12 +59,9 @@ def drape_figure(scene: DrapeScene, result: DrapeResult):
     lower, upper = view_box(result.polylines)
     traces = []
     if scene.obstacle_mesh is not None:
-        v, t = scene.obstacle_mesh
-        shown = faces_in_box(v, t, lower, upper)
-        if len(shown):
-            used, inv = np.unique(shown, return_inverse=True)
-            w = v[used] * CM
-            tt = inv.reshape(-1, 3)
+        v, tt = clip_to_box(*scene.obstacle_mesh, lower, upper)
+        if len(tt):
+            w = v * CM
             traces.append(go.Mesh3d(x=w[:, 0], y=w[:, 1], z=w[:, 2], i=tt[:, 0], j=tt[:, 1], k=tt[:, 2],
                                     color="#9fb0c8", opacity=0.6, name=scene.obstacles[0].name, showlegend=True,
                                     hoverinfo="skip"))
