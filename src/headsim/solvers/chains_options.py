@@ -252,8 +252,8 @@ class ChainOptions:
         False: the former steps. Issue 10's thirtieth session: after the landing the head scene's gaps are
         0.03–0.05 µm; reference scene at rest (t = 1.0 s, 8 steps after 3, alternated runs against False): max
         joint gap 0.10 against 7.7 µm, max penetration 122 against 127 µm, fibre overlaps > 1 µm away from the
-        roots 2,058 against 2,506 (largest 69 against 51 µm), mean active contacts 16.5 k against 15.8 k, and
-        0.97 / 0.98 against 0.90 / 0.85 s per step (contacts phase 0.77 against 0.72 / 0.67 s).
+        roots 2,058 against 2,506 (largest 69 against 51 µm), mean active contacts 16.5 k against 15.8 k; time per step
+        within the machine's noise: 0.97 / 0.98 / 0.84 / 0.89 / 0.88 against 0.90 / 0.85 / 0.80 / 0.95 / 1.07 s.
     separating_candidates : coupled mode, default True: a penetrating pair (g < 0) that the persistence filter
         (eq. 8.9) drops because it separates at u⁻ is kept as a candidate row, which the coupled solve turns
         into a row as soon as its current velocities close it (the active set of eq. 8.9 evaluated at the
