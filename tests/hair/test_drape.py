@@ -155,11 +155,18 @@ def test_terrain_field_is_solid_and_within_its_interpolation_bound():
     returns the offset of points placed along the surface normal; the grid field is within the
     trilinear interpolation bound (3/8) Δs² κ_max of it near the surface, and that bound is the iso-level
     the fibres rest on (so the interpolation cannot put them into the true surface)."""
-    from headsim.hair.drape import _terrain_distance, _terrain_field, _terrain_height, _terrain_slope, terrain_level
+    from headsim.hair.drape import (
+        _terrain_bottom,
+        _terrain_distance,
+        _terrain_field,
+        _terrain_height,
+        _terrain_slope,
+        terrain_level,
+    )
 
     fld, _ = _terrain_field()
     rng = np.random.default_rng(1)
-    xz = rng.uniform(-0.14, 0.14, (2000, 2))
+    xz = rng.uniform(-0.13, 0.13, (2000, 2))  # more than the edge's rounding radius (15 mm) inside the walls
     h = _terrain_height(xz[:, 0], xz[:, 1])
     sx, sz = _terrain_slope(xz[:, 0], xz[:, 1])
     nrm = np.stack([-sx, np.ones_like(sx), -sz], 1)
@@ -173,9 +180,27 @@ def test_terrain_field_is_solid_and_within_its_interpolation_bound():
     for depth in (4e-3, 12e-3, 28e-3):
         assert (fld.distance(surf - [0.0, depth, 0.0]) < 0).all()
         assert (fld.distance(surf + [0.0, depth, 0.0]) > 0).all()
-        assert (fld.normal(surf - [0.0, depth, 0.0])[:, 1] > 0).all()
+        # nearer the top than the side walls (the bottom lies 5 cm under the lowest point)
+        away = np.abs(xz).max(1) < 0.15 - depth - 2 * fld.spacing
+        assert (fld.normal(surf[away] - [0.0, depth, 0.0])[:, 1] > 0).all()
     sc = build_drape_scene("terrain", n_fibres=3, segments=30)
     assert sc.obstacles[0].level == bound
+    # the side walls: the slab ends at |x|, |z| = 15 cm; beside it, below its rounded edge, the distance is horizontal
+    edge_z = rng.uniform(-0.12, 0.12, 200)
+    he = _terrain_height(0.15, edge_z)
+    # more than the 15 mm rounding below the edge (along the steepest slope there) and above the bottom
+    for dx, dy in ((2e-3, -32e-3), (8e-3, -35e-3), (-2e-3, -33e-3)):
+        q = np.stack([np.full(200, 0.15 + dx), he + dy, edge_z], 1)
+        np.testing.assert_allclose(_terrain_distance(q), dx, atol=1e-12)
+        assert np.abs(fld.distance(q) - dx).max() < bound
+        if dx > 0:
+            n = fld.normal(q)
+            assert (n[:, 0] > 0.99).all()  # out of the wall, not up through the hill
+    # under the flat bottom: outside, by the height below it; the grid holds the slab with a margin
+    b = _terrain_bottom()
+    under = np.stack([xz[:, 0], np.full(2000, b - 5e-3), xz[:, 1]], 1)
+    np.testing.assert_allclose(_terrain_distance(under), 5e-3, atol=1e-12)
+    assert (fld.distance(under) > 0).all() and (fld.normal(under)[:, 1] < -0.99).all()
 
 
 def test_sphere_helical_geometry_is_derived_from_the_seeds_table_8_1_box():
