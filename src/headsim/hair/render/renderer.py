@@ -139,7 +139,7 @@ class Surface:
 class MeshSurface:
     """An opaque diffuse (Lambertian) triangle mesh drawn with the fibres (e.g. a head or a terrain): ``vertices``
     (n, 3) m, ``triangles`` (m, 3) vertex indices, ``albedo`` RGB in [0, 1]. Shaded with its vertex normals
-    (area-weighted face normals, interpolated across each triangle; either winding), otherwise as :class:`Surface`."""
+    (trimesh's, interpolated across each triangle; either winding), otherwise as :class:`Surface`."""
 
     vertices: np.ndarray
     triangles: np.ndarray
@@ -168,21 +168,16 @@ def _kernel_mesh(meshes: Sequence[MeshSurface]) -> tuple:
                 np.zeros((0, 3)), np.ones(1, np.int64))
     from headsim.collide.bvh import TriangleBVH
 
+    import trimesh
+
     vs, ts, albedo, corner, geo = [], [], [], [], []
     n0 = 0
     for m in meshes:
         v = np.asarray(m.vertices, dtype=np.float64)
         t = np.asarray(m.triangles, dtype=np.int64)
-        face = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])  # length: twice the area
-        vn = np.zeros_like(v)
-        for c in range(3):
-            np.add.at(vn, t[:, c], face)
-        length = np.linalg.norm(face, axis=1, keepdims=True)
-        g = np.divide(face, length, out=np.zeros_like(face), where=length > 0)
-        vlen = np.linalg.norm(vn, axis=1, keepdims=True)
-        vn = np.divide(vn, vlen, out=np.zeros_like(vn), where=vlen > 0)
-        corner.append(vn[t])
-        geo.append(g)
+        tm = trimesh.Trimesh(v, t, process=False)  # face normals, and vertex normals weighted by the corner angles
+        corner.append(np.asarray(tm.vertex_normals)[t])
+        geo.append(np.asarray(tm.face_normals))
         albedo.append(np.broadcast_to(np.asarray(m.albedo, dtype=np.float64), (len(t), 3)))
         vs.append(v)
         ts.append(t + n0)
