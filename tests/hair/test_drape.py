@@ -98,8 +98,8 @@ def test_head_scene_roots_are_spaced_and_the_fibres_land_on_the_head():
     """The head scene (20 × 15 segments, 15 cm) through the fibres' landing on the head (first contact at
     t ≈ 0.38 s, tips at up to 3.5 m/s): no two anchored roots closer than 0.28 mm (with independent samples the
     40-fibre scene had two 42 µm apart, and that run diverged at t = 0.41 s), the fibres reach the head, and
-    every joint gap opened in the landing is closed again by t = 0.45 s (``close_joint_gaps``; without it the
-    40 × 30 run kept 22.5 µm)."""
+    every joint gap opened in the landing is closed again by t = 0.45 s (``close_joint_gaps``; without it this run
+    keeps 28 µm, the 40 × 30 one 22.5 µm)."""
     from scipy.spatial import cKDTree
 
     from headsim.collide.fibre_scenes import ROOT_DENSITY
@@ -110,7 +110,8 @@ def test_head_scene_roots_are_spaced_and_the_fibres_land_on_the_head():
     res = run_drape(sc)
     assert res.obstacle_contacts.max() > 0
     assert np.isfinite(res.polylines).all()
-    assert res.max_joint_gap[-1] < 1e-3 * sc.model.radius[0]
+    # closed to what one step's second-order rotation opens (tens of nm here), not kept (28 µm without it)
+    assert res.max_joint_gap[-1] < 1e-6
 
 
 def test_bounding_box_volume():

@@ -31,7 +31,7 @@ def _twist_normal_speed(u, s, n0, n1, n2, r0, r1, r2):
 
 @njit(cache=True, inline="always")
 def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
-                   closing_factor, mark_tight, smooth):
+                   closing_factor, mark_tight, smooth, sep_allow):
     """Row of pair q (the geometry and tests of :func:`fibre_pair_rows`, which the fused detection pass
     shares). Returns (keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn) with vn = n·(u_a(p_a) −
     u_b(p_b)) (m/s; 0 without u)."""
@@ -80,6 +80,9 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
         if -closing > smooth:
             if mark_tight == 2 and gap < 0.0:  # a separating penetration: kept as a candidate row
                 return True, False, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn
+            if sep_allow.shape[0] > 0 and vn <= smooth + sep_allow[a] + sep_allow[b]:
+                # separating, but slower than this step's velocity changes may turn it round: a candidate row
+                return True, False, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn
             return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, vn
         if closing < 0.0:
             closing = 0.0
@@ -90,7 +93,7 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
 
 @njit(cache=True, nogil=True)
 def drop_pairs_without_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
-                            mark_tight, smooth):
+                            mark_tight, smooth, sep_allow):
     """Compact (in place, returning their number) the closest-point pairs (P, 2) and params (P, 2) of one
     detection chunk to the ones :func:`_pair_geometry` keeps (within the detection band; not separating
     faster than ``smooth``, except a separating penetration with ``mark_tight`` = 2). The detection pass
@@ -104,7 +107,7 @@ def drop_pairs_without_rows(pairs, params, x, d3, half, radius, speed, band_frac
     n = 0
     for q in range(pairs.shape[0]):
         if _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
-                          closing_factor, mark_tight, smooth)[0]:
+                          closing_factor, mark_tight, smooth, sep_allow)[0]:
             pairs[n, 0] = pairs[q, 0]
             pairs[n, 1] = pairs[q, 1]
             params[n, 0] = params[q, 0]
@@ -134,7 +137,7 @@ def _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, a_
 
 @njit(cache=True)
 def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
-                    mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
+                    mark_tight, smooth, sep_allow, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
     """Contact rows of closest-point pairs (pairs (P, 2) segment ids, params (P, 2) axis parameters in
     [0, 1]). Per pair: closest points c_a, c_b, normal n = (c_a − c_b)/‖·‖ (the axes' cross product for
     touching axes, +y for parallel touching ones), gap g = ‖c_a − c_b‖ − r_a − r_b, contact points
@@ -146,14 +149,16 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     c = max(0, −n·(u_a(p_a) − u_b(p_b))) the normal closing speed of the twists u (S, 6) (only with
     ``mark_tight``; otherwise, and for an empty u, every kept pair is tight). With u given, pairs that
     separate faster than ``smooth`` (m/s, n·(u_a − u_b) > smooth) are dropped (persistence filter, eq. 8.9),
-    except, with ``mark_tight`` = 2, the penetrating ones (g < 0), which are kept as candidates (not tight). Writes the kept rows compactly to the outputs (length ≥ P) and
+    except, with ``mark_tight`` = 2, the penetrating ones (g < 0), and, with ``sep_allow`` (S,) m/s given (empty:
+    none), the ones separating slower than smooth + sep_allow_a + sep_allow_b, which are kept as candidates (not
+    tight). Writes the kept rows compactly to the outputs (length ≥ P) and
     returns their number."""
     k = 0
     have_u = u.shape[0] > 0
     for q in range(pairs.shape[0]):
         keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, _ = _pair_geometry(
             q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-            mark_tight, smooth)
+            mark_tight, smooth, sep_allow)
         if not keep:
             continue
         _write_row(k, pairs[q, 0], pairs[q, 1], tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
@@ -405,8 +410,8 @@ def _reserve_gap(a, b, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, dq0, half_
 
 
 def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed, band_fraction, margin, dt, u,
-                      closing_factor, mark_tight, smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out,
-                      key_out, allow, dq0, half_gap, res_margin, warm_keys, sp, spar, tmp_p, tmp_r, res_idx, res_sigma,
+                      closing_factor, mark_tight, smooth, sep_allow, a_out, b_out, n_out, la_out, lb_out, gap_out,
+                      tight_out, key_out, allow, dq0, half_gap, res_margin, warm_keys, sp, spar, tmp_p, tmp_r, res_idx, res_sigma,
                       res_count, old_speed):
     """Contact rows of unsorted closest-point pairs (pairs (P, 2) with pairs[:, 0] < pairs[:, 1] and distinct
     (a, b), params (P, 2)) in one fused pass, the same rows in the same order as
@@ -503,7 +508,7 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
             if not _joint_duplicate(i, start, sp, spar, half, radius, fibre, is_root):
                 ok, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn = _pair_geometry(
                     i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-                    mark_tight, smooth)
+                    mark_tight, smooth, sep_allow)
                 if ok and old_speed.shape[0] > 0:
                     old_band = _pair_band(sp[i, 0], sp[i, 1], radius, old_speed, band_fraction, margin, dt)[1]
                     if gap < old_band - 1e-12:
@@ -541,7 +546,7 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
                 continue
             _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn = _pair_geometry(
                 i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-                mark_tight, smooth)
+                mark_tight, smooth, sep_allow)
             a = sp[i, 0]
             b = sp[i, 1]
             _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
@@ -570,7 +575,7 @@ reserve_suspects, reserve_suspects_parallel = serial_and_parallel(_reserve_suspe
 
 @njit(cache=True)
 def reserve_rows(sel, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor, mark_tight,
-                 smooth, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out, key_out):
+                 smooth, sep_allow, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out, key_out):
     """The rows of the pairs at positions sel of the sorted pairs sp, spar, written as :func:`_detect_rows_impl`
     writes its rows (same inputs: the same geometry), for reserve pairs that become candidates."""
     S = half.shape[0]
@@ -579,7 +584,7 @@ def reserve_rows(sel, sp, spar, x, d3, half, radius, speed, band_fraction, margi
         i = sel[k]
         _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, _ = _pair_geometry(
             i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-            mark_tight, smooth)
+            mark_tight, smooth, sep_allow)
         _write_row(k, sp[i, 0], sp[i, 1], tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
                    a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out)
         key_out[k] = sp[i, 0] * S + sp[i, 1]
