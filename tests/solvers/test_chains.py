@@ -1587,3 +1587,38 @@ def test_joint_gap_of_a_fibre_in_contact_is_closed_by_the_push_out(close):
         else:
             assert joint_gaps(model, state).max() == pytest.approx(20e-6, rel=1e-9)
     assert solver.last_stats.max_penetration < 1e-3 * R_FIBRE
+
+
+@pytest.mark.parametrize("allow", [True, False])
+def test_separating_pair_that_the_solve_turns_round_keeps_its_row(allow):
+    """Three crossing free segments stacked in y (no gravity, no friction): A lies 5 µm above B and moves away
+    from it at 2 cm/s; C, 60 µm above A, falls onto A at 0.2 m/s, and the impact sends A down onto B within the
+    step. The pair (A, B) separates at u⁻ faster than the persistence filter's ‖g‖Δt (9.8 mm/s) but slower than
+    that plus the step's allowance of velocity changes, so with ``separating_allowance`` it stays a candidate,
+    becomes a row when the solve closes it, and A stops on B, 5 µm clear; without it A enters B by 62 µm."""
+    L = 3e-3
+
+    def seg(y, along_x):
+        d = np.array([L / 2, 0.0, 0.0]) if along_x else np.array([0.0, 0.0, L / 2])
+        c = np.array([0.0, y, 0.0])
+        return np.array([c - d, c + d])
+
+    yA = 2 * R_FIBRE + 5e-6
+    yC = yA + 2 * R_FIBRE + 60e-6
+    nodes = np.concatenate([seg(0.0, True), seg(yA, False), seg(yC, True)])  # B, A, C
+    model, state = chain_model_from_polylines(nodes, [0, 2, 4, 6], radius=R_FIBRE, anchored=False)
+    v = np.zeros((3, 3))
+    v[1, 1] = 0.02
+    v[2, 1] = -0.2
+    state = ChainState(state.position, state.rotation, v, state.angular_velocity, 0.0)
+    solver = ChainSolver(ChainOptions(friction=FrictionLaw.none(), gravity=(0.0, 0.0, 0.0),
+                                      separating_allowance=allow))
+    new = solver.step(model, state, 1e-3, [])
+    overlap_ab = 2 * R_FIBRE - (new.position[1, 1] - new.position[0, 1])
+    overlap_ca = 2 * R_FIBRE - (new.position[2, 1] - new.position[1, 1])
+    assert overlap_ca < 0.0  # C is stopped by A either way
+    if allow:
+        assert overlap_ab < 0.0
+        assert new.velocity[0, 1] < -0.01  # B takes its share of the impact
+    else:
+        assert overlap_ab > 50e-6
