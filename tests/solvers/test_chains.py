@@ -1510,7 +1510,7 @@ def test_a_solve_the_exact_final_solve_replaced_is_not_counted_as_capped():
     assert stats[True].qp_capped == stats[False].qp_capped - 1
 
 
-def _crossing_axes(persistent, y_start=8e-6, mid_step_axis=-5e-6):
+def _crossing_axes(persistent, y_start=8e-6, mid_step_axis=-5e-6, pass_through=True):
     """Two crossed free 3 mm fibres (70 µm, one segment each, no gravity): B lies across A with their axes
     ``y_start`` apart (overlap 2r − y_start). One step at rest records the pair's normal (ChainSolver keeps the
     normals of penetrating pairs); then B is given the downward speed that puts its axis ``mid_step_axis`` (m)
@@ -1520,7 +1520,8 @@ def _crossing_axes(persistent, y_start=8e-6, mid_step_axis=-5e-6):
     a = np.array([[-L / 2, 0.0, 0.0], [L / 2, 0.0, 0.0]])
     b = np.array([[0.0, y_start, -L / 2], [0.0, y_start, L / 2]])
     model, state = chain_model_from_polylines(np.concatenate([a, b]), [0, 2, 4], radius=R_FIBRE, anchored=False)
-    solver = ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0), persistent_normals=persistent))
+    solver = ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0), persistent_normals=persistent,
+                                      pass_through_normals=pass_through))
     state = solver.step(model, state, 1e-3)
     v = np.zeros((2, 3))
     v[1, 1] = (mid_step_axis - (state.position[1, 1] - state.position[0, 1])) / 0.5e-3
@@ -1536,10 +1537,14 @@ def test_a_pair_whose_axes_pass_through_each_other_keeps_its_side():
     pressed to an overlap of nearly 2r whose axes pass through each other within a step (here driven to
     that, :func:`_crossing_axes`) is held on its previous side and pushed back out, in contact at the axes'
     distance 2r (the no-penetration state on the side it came from; measured 69.5 µm); with the former normals
-    the row pushes B on through A, and B leaves on the far side (tunnelled; measured 1.05 mm below A)."""
+    the row pushes B on through A, and B leaves on the far side (tunnelled; measured 1.05 mm below A), unless the
+    mid-step detection sees that the axes passed each other in the first half step (``pass_through_normals``,
+    the default), which holds B on its side as well."""
     height = _crossing_axes(persistent=True)
     assert height == pytest.approx(2 * R_FIBRE, rel=0.05)
     height = _crossing_axes(persistent=False)
+    assert height == pytest.approx(2 * R_FIBRE, rel=0.05)
+    height = _crossing_axes(persistent=False, pass_through=False)
     assert height < -2 * R_FIBRE
 
 
@@ -1622,3 +1627,27 @@ def test_separating_pair_that_the_solve_turns_round_keeps_its_row(allow):
         assert new.velocity[0, 1] < -0.01  # B takes its share of the impact
     else:
         assert overlap_ab > 50e-6
+
+
+@pytest.mark.parametrize("speed", [0.3, 1.0])
+def test_fast_crossing_fibres_do_not_pass_through_each_other(speed):
+    """Two crossed free 3 mm segments (70 µm, no gravity), B falling onto A from 40 µm at 0.3 or 1 m/s: faster
+    than (2r + gap)/(½Δt) = 0.22 m/s, so at the mid-step detection B's axis is already on A's far side. With
+    ``pass_through_normals`` the pair keeps the side it came from and B stops on A (axes ≈ 2r apart after 3
+    steps); without it B reads as separating on the far side and passes through (≥ 0.5 mm below A)."""
+    L = 3e-3
+    a = np.array([[-L / 2, 0.0, 0.0], [L / 2, 0.0, 0.0]])
+    b = np.array([[0.0, 2 * R_FIBRE + 40e-6, -L / 2], [0.0, 2 * R_FIBRE + 40e-6, L / 2]])
+    model, rest = chain_model_from_polylines(np.concatenate([a, b]), [0, 2, 4], radius=R_FIBRE, anchored=False)
+    v = np.zeros((2, 3))
+    v[1, 1] = -speed
+    heights = []
+    for flip in (True, False):
+        state = ChainState(rest.position, rest.rotation, v, rest.angular_velocity, 0.0)
+        solver = ChainSolver(ChainOptions(friction=FrictionLaw.none(), gravity=(0.0, 0.0, 0.0),
+                                          pass_through_normals=flip))
+        for _ in range(3):
+            state = solver.step(model, state, 1e-3)
+        heights.append(state.position[1, 1] - state.position[0, 1])
+    assert heights[0] == pytest.approx(2 * R_FIBRE, rel=0.1)
+    assert heights[1] < -0.5e-3

@@ -523,8 +523,11 @@ class ChainSolver:
             sep_allow = (np.ascontiguousarray(self._allow, np.float64)
                          if (o.separating_allowance and self._allow is not None and uu_all is not None
                              and o.contact_coupling == "coupled") else np.zeros(0))
+            # pairs that passed through each other in the first half step: the t_i side (ChainOptions.pass_through_normals)
+            dq_half = (np.ascontiguousarray(dq0, np.float64) if (dq0 is not None and o.pass_through_normals)
+                       else np.zeros((0, 6)))
             band_args = (np.ascontiguousarray(spd, np.float64), float(o.contact_band), float(margin), float(dt), uu,
-                         CLOSING_MARGIN_FACTOR, self._pair_mark(), smooth, sep_allow)
+                         CLOSING_MARGIN_FACTOR, self._pair_mark(), smooth, sep_allow, dq_half)
             keep = geo + band_args  # the arguments of _pair_geometry's keep rule
             packed = model.n_segments >= o.parallel_threshold
             if grown is not None and len(grown) <= SUBSET_QUERY_FRACTION * model.n_segments:
@@ -582,7 +585,7 @@ class ChainSolver:
                     nr = int(res_count[0])
                     self._reserve.append(_Reserve(sp[:P], spar[:P], res_idx[:nr].copy(), res_sigma[:nr].copy(),
                                              (x.copy(), np.ascontiguousarray(d3).copy(), h, r) + rest[:4]
-                                                  + (uu.copy(),) + rest[5:9],
+                                                  + (uu.copy(),) + rest[5:10],
                                                   res_margin))
                 if k < 0:  # a pair with a ≥ b (not from these trees): sort, filter and build the rows in steps
                     order = np.lexsort((pairs[:, 1], pairs[:, 0]))

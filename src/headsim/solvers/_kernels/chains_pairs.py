@@ -31,7 +31,7 @@ def _twist_normal_speed(u, s, n0, n1, n2, r0, r1, r2):
 
 @njit(cache=True, inline="always")
 def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
-                   closing_factor, mark_tight, smooth, sep_allow):
+                   closing_factor, mark_tight, smooth, sep_allow, dq_half):
     """Row of pair q (the geometry and tests of :func:`fibre_pair_rows`, which the fused detection pass
     shares). Returns (keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn) with vn = n·(u_a(p_a) −
     u_b(p_b)) (m/s; 0 without u)."""
@@ -49,7 +49,23 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
     band, outer = _pair_band(a, b, radius, speed, band_fraction, margin, dt)
     if not gap < outer:
         return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    if dist > 1e-12:
+    flipped = False
+    if dq_half.shape[0] > 0 and dist > 1e-12 and 0.0 < params[q, 0] < 1.0 and 0.0 < params[q, 1] < 1.0:
+        # the closest points' separation at t_i (first order: less the first half step's motion dq_half (S, 6) of
+        # the axis points): a pair whose centre lines passed through each other in the first half step (closest
+        # points inside both segments: not a pair going round an end) separates the other way at t_i; its normal
+        # is the t_i side and its gap −(dist + r_a + r_b)
+        e0 = dv0 - (dq_half[a, 0] + dq_half[a, 4] * ta * d3[a, 2] - dq_half[a, 5] * ta * d3[a, 1]) \
+            + (dq_half[b, 0] + dq_half[b, 4] * tb * d3[b, 2] - dq_half[b, 5] * tb * d3[b, 1])
+        e1 = dv1 - (dq_half[a, 1] + dq_half[a, 5] * ta * d3[a, 0] - dq_half[a, 3] * ta * d3[a, 2]) \
+            + (dq_half[b, 1] + dq_half[b, 5] * tb * d3[b, 0] - dq_half[b, 3] * tb * d3[b, 2])
+        e2 = dv2 - (dq_half[a, 2] + dq_half[a, 3] * ta * d3[a, 1] - dq_half[a, 4] * ta * d3[a, 0]) \
+            + (dq_half[b, 2] + dq_half[b, 3] * tb * d3[b, 1] - dq_half[b, 4] * tb * d3[b, 0])
+        flipped = e0 * dv0 + e1 * dv1 + e2 * dv2 < 0.0
+    if flipped:
+        n0, n1, n2 = -dv0 / dist, -dv1 / dist, -dv2 / dist
+        gap = -dist - ra - rb
+    elif dist > 1e-12:
         n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
     else:
         c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
@@ -93,7 +109,7 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
 
 @njit(cache=True, nogil=True)
 def drop_pairs_without_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
-                            mark_tight, smooth, sep_allow):
+                            mark_tight, smooth, sep_allow, dq_half):
     """Compact (in place, returning their number) the closest-point pairs (P, 2) and params (P, 2) of one
     detection chunk to the ones :func:`_pair_geometry` keeps (within the detection band; not separating
     faster than ``smooth``, except a separating penetration with ``mark_tight`` = 2). The detection pass
@@ -107,7 +123,7 @@ def drop_pairs_without_rows(pairs, params, x, d3, half, radius, speed, band_frac
     n = 0
     for q in range(pairs.shape[0]):
         if _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u,
-                          closing_factor, mark_tight, smooth, sep_allow)[0]:
+                          closing_factor, mark_tight, smooth, sep_allow, dq_half)[0]:
             pairs[n, 0] = pairs[q, 0]
             pairs[n, 1] = pairs[q, 1]
             params[n, 0] = params[q, 0]
@@ -137,7 +153,7 @@ def _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, a_
 
 @njit(cache=True)
 def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor,
-                    mark_tight, smooth, sep_allow, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
+                    mark_tight, smooth, sep_allow, dq_half, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out):
     """Contact rows of closest-point pairs (pairs (P, 2) segment ids, params (P, 2) axis parameters in
     [0, 1]). Per pair: closest points c_a, c_b, normal n = (c_a − c_b)/‖·‖ (the axes' cross product for
     touching axes, +y for parallel touching ones), gap g = ‖c_a − c_b‖ − r_a − r_b, contact points
@@ -158,7 +174,7 @@ def fibre_pair_rows(pairs, params, x, d3, half, radius, speed, band_fraction, ma
     for q in range(pairs.shape[0]):
         keep, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, _ = _pair_geometry(
             q, pairs, params, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-            mark_tight, smooth, sep_allow)
+            mark_tight, smooth, sep_allow, dq_half)
         if not keep:
             continue
         _write_row(k, pairs[q, 0], pairs[q, 1], tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
@@ -410,7 +426,7 @@ def _reserve_gap(a, b, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, dq0, half_
 
 
 def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed, band_fraction, margin, dt, u,
-                      closing_factor, mark_tight, smooth, sep_allow, a_out, b_out, n_out, la_out, lb_out, gap_out,
+                      closing_factor, mark_tight, smooth, sep_allow, dq_half, a_out, b_out, n_out, la_out, lb_out, gap_out,
                       tight_out, key_out, allow, dq0, half_gap, res_margin, warm_keys, sp, spar, tmp_p, tmp_r, res_idx, res_sigma,
                       res_count, old_speed):
     """Contact rows of unsorted closest-point pairs (pairs (P, 2) with pairs[:, 0] < pairs[:, 1] and distinct
@@ -508,7 +524,7 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
             if not _joint_duplicate(i, start, sp, spar, half, radius, fibre, is_root):
                 ok, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn = _pair_geometry(
                     i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-                    mark_tight, smooth, sep_allow)
+                    mark_tight, smooth, sep_allow, dq_half)
                 if ok and old_speed.shape[0] > 0:
                     old_band = _pair_band(sp[i, 0], sp[i, 1], radius, old_speed, band_fraction, margin, dt)[1]
                     if gap < old_band - 1e-12:
@@ -546,7 +562,7 @@ def _detect_rows_impl(pairs, params, x, d3, half, radius, fibre, is_root, speed,
                 continue
             _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, vn = _pair_geometry(
                 i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-                mark_tight, smooth, sep_allow)
+                mark_tight, smooth, sep_allow, dq_half)
             a = sp[i, 0]
             b = sp[i, 1]
             _write_row(k, a, b, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
@@ -575,7 +591,7 @@ reserve_suspects, reserve_suspects_parallel = serial_and_parallel(_reserve_suspe
 
 @njit(cache=True)
 def reserve_rows(sel, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, closing_factor, mark_tight,
-                 smooth, sep_allow, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out, key_out):
+                 smooth, sep_allow, dq_half, a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out, key_out):
     """The rows of the pairs at positions sel of the sorted pairs sp, spar, written as :func:`_detect_rows_impl`
     writes its rows (same inputs: the same geometry), for reserve pairs that become candidates."""
     S = half.shape[0]
@@ -584,7 +600,7 @@ def reserve_rows(sel, sp, spar, x, d3, half, radius, speed, band_fraction, margi
         i = sel[k]
         _, tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2, _ = _pair_geometry(
             i, sp, spar, x, d3, half, radius, speed, band_fraction, margin, dt, u, have_u, closing_factor,
-            mark_tight, smooth, sep_allow)
+            mark_tight, smooth, sep_allow, dq_half)
         _write_row(k, sp[i, 0], sp[i, 1], tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
                    a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out)
         key_out[k] = sp[i, 0] * S + sp[i, 1]
