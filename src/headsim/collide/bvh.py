@@ -254,15 +254,11 @@ class TriangleBVH:
     def ray_arrays(self) -> tuple:
         """The arrays of :func:`headsim.collide._kernels_ray.first_hit_ray` (tri_coords, order, node_child,
         node_start, node_count, node_lo, node_hi) and the stack size its work arrays need, for kernels that
-        trace single rays through this tree (e.g. the hair renderer's surfaces). Read-only views."""
+        trace single rays through this tree (e.g. the hair renderer's surfaces). Copies: a refit does not change
+        them."""
         arrays = (self._tri_coords, self._order, self._node_child, self._node_start, self._node_count,
                   self._node_lo, self._node_hi)
-        views = []
-        for a in arrays:
-            v = a.view()
-            v.flags.writeable = False
-            views.append(v)
-        return (*views, int(self._stack_size))
+        return (*(a.copy() for a in arrays), int(self._stack_size))
 
     def triangle_normals(self, triangle_ids) -> np.ndarray:
         """(k, 3) unit normals of the given triangles (winding orientation; zero for degenerate)."""

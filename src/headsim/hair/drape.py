@@ -27,6 +27,7 @@ complete set of the three directions in the database); ``iso`` — μ = 0.47 (§
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -281,8 +282,10 @@ def _round_intersection(a, b, rho):
     return np.minimum(-rho, np.maximum(a, b)) + np.hypot(np.maximum(a + rho, 0.0), np.maximum(b + rho, 0.0))
 
 
+@functools.cache
 def _terrain_bottom() -> float:
-    """y (m) of the terrain slab's flat bottom: :data:`_TERRAIN_DEPTH` below the surface's lowest point."""
+    """y (m) of the terrain slab's flat bottom: :data:`_TERRAIN_DEPTH` below the surface's lowest point (computed
+    once: every distance query reads it)."""
     xs = np.linspace(-_TERRAIN_HALF_WIDTH, _TERRAIN_HALF_WIDTH, 301)
     X, Z = np.meshgrid(xs, xs, indexing="ij")
     return float(_terrain_height(X, Z).min()) - _TERRAIN_DEPTH

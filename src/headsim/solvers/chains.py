@@ -521,8 +521,7 @@ class ChainSolver:
             # separating pairs within this step's allowance δ̂ of velocity changes (candidate_reserve) stay candidates:
             # the solve may turn them round (ChainOptions.separating_allowance)
             sep_allow = (np.ascontiguousarray(self._allow, np.float64)
-                         if (o.separating_allowance and self._allow is not None and uu_all is not None
-                             and o.contact_coupling == "coupled") else np.zeros(0))
+                         if o.separating_allowance and self._allow is not None else np.zeros(0))
             # pairs that passed through each other in the first half step: the t_i side (ChainOptions.pass_through_normals)
             dq_half = (np.ascontiguousarray(dq0, np.float64) if (dq0 is not None and o.pass_through_normals)
                        else np.zeros((0, 6)))
@@ -770,12 +769,19 @@ class ChainSolver:
         lam[order] = lam_sorted
         return u_out, int(sweeps.max(initial=0))
 
-    def _joint_rows(self, model, rows, x_mid, R_mid, dt, u_minus=None, spring_step=0.5):
+    def _joint_rows(self, model, rows, x_mid, R_mid, dt, u_minus=None, spring_step=0.5, target_scale=None):
         """Bilateral joint rows of every fibre with a contact: bodies k (−1: root anchor), l, levers, and the
         target relative anchor velocity −γ d_mid/(½Δt) (γ = ``joint_gap_fraction``; γ = 1 closes the
-        mid-step gap d_mid by the step's end, γ = 0 keeps the anchors moving together)."""
+        mid-step gap d_mid by the step's end, γ = 0 keeps the anchors moving together); ``target_scale`` (1/s):
+        target_scale × d instead (d the gap of the given state x_mid, R_mid)."""
         fib = model.segment_fibre
-        seg, is_root = self._touched_joints(model, rows)
+        touched = KP.touched_fibres(rows.body, rows.partner, fib, model.n_fibres)
+        seg = np.nonzero(touched[fib])[0]
+        is_root = model.is_root[seg]
+        keep = ~is_root | model.anchored[fib[seg]]
+        seg, is_root = seg[keep].astype(np.int64), np.ascontiguousarray(is_root[keep])
+        if target_scale is None:
+            target_scale = -float(self.options.joint_gap_fraction) / (0.5 * dt)
         n = len(seg)
         k, rk, rl, target = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
         C, w0 = np.empty((n, 3, 3)), np.empty((n, 3))
@@ -785,20 +791,8 @@ class ChainSolver:
             seg, is_root, np.ascontiguousarray(fib[seg]), np.ascontiguousarray(x_mid), np.ascontiguousarray(R_mid),
             model.half_length, model.root_point, model.root_frame, model.joint_stiffness, model.joint_damping,
             np.zeros((0, 6)) if u_minus is None else np.ascontiguousarray(u_minus),
-            -float(self.options.joint_gap_fraction) / (0.5 * dt), spring_step * dt * dt, dt, k, rk, rl, target, C, w0)
+            float(target_scale), spring_step * dt * dt, dt, k, rk, rl, target, C, w0)
         return k, seg, rk, rl, target, C, w0
-
-    @staticmethod
-    def _touched_joints(model, rows):
-        """(seg (n,) int64, is_root (n,) bool): the segments whose inner joint is a row of the coupled solve —
-        every segment of a fibre with a contact row or candidate (``rows``), less free roots — in the order of
-        :meth:`_joint_rows`."""
-        fib = model.segment_fibre
-        touched = KP.touched_fibres(rows.body, rows.partner, fib, model.n_fibres)
-        seg = np.nonzero(touched[fib])[0]
-        is_root = model.is_root[seg]
-        keep = ~is_root | model.anchored[fib[seg]]
-        return seg[keep].astype(np.int64), np.ascontiguousarray(is_root[keep])
 
     def _joint_gap_push(self, model, rows, x, R, dt):
         """(n, 3) m/s or None: joint targets of the split push-out that close the t_i joint gaps d^i of the
@@ -806,17 +800,9 @@ class ChainSolver:
         ``push_out_slop`` × the radius, 0 elsewhere (rows in :meth:`_joint_rows` order); None when no gap does.
         Under ``end_velocity_positions`` those fibres move q^{i+1} = q^i + Δt u, and the velocity solve's joint
         rows (J u' = 0) keep their gaps as they were, so without this a gap that opened in one step stayed."""
-        seg, is_root = self._touched_joints(model, rows)
-        n = len(seg)
-        if not n:
+        _, seg, _, _, target, _, _ = self._joint_rows(model, rows, x, R, dt, target_scale=-1.0 / dt)
+        if not len(seg):
             return None
-        fib = np.ascontiguousarray(model.segment_fibre[seg])
-        k, rk, rl, target = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
-        C, w0 = np.empty((n, 3, 3)), np.empty((n, 3))
-        (FK.joint_rows_parallel if model.n_segments >= self.options.parallel_threshold else FK.joint_rows)(
-            seg, is_root, fib, np.ascontiguousarray(x), np.ascontiguousarray(R), model.half_length, model.root_point,
-            model.root_frame, model.joint_stiffness, model.joint_damping, np.zeros((0, 6)), -1.0 / dt, 0.0, 0.0,
-            k, rk, rl, target, C, w0)
         slop = float(self.options.push_out_slop) * model.radius[seg] / dt  # as a closing speed
         small = np.sqrt((target * target).sum(1)) <= slop
         if small.all():
@@ -1420,7 +1406,8 @@ class ChainSolver:
                 beta_pos = o.penetration_recovery * (0.5 if endvel else 1.0)
                 push_impulses = None
                 joint_push = None  # the touched fibres' t_i joint gaps, closed by the push-out (close_joint_gaps)
-                if last and endvel and o.close_joint_gaps and o.split_recovery and o.contact_coupling == "coupled":
+                if (last and endvel and o.close_joint_gaps and o.split_recovery and o.penetration_recovery > 0
+                        and o.contact_coupling == "coupled"):
                     joint_push = self._joint_gap_push(model, rows, x, R, dt)
                 if last and o.penetration_recovery > 0 and ((gaps_pos < 0).any() or joint_push is not None):
                     # split impulse: the penetration push-out moves the positions but is not kept as velocity

@@ -166,9 +166,9 @@ def _kernel_mesh(meshes: Sequence[MeshSurface]) -> tuple:
         return (np.zeros((0, 3, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
                 np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)),
                 np.zeros((0, 3)), np.ones(1, np.int64))
-    from headsim.collide.bvh import TriangleBVH
-
     import trimesh
+
+    from headsim.collide.bvh import TriangleBVH
 
     vs, ts, albedo, corner, geo = [], [], [], [], []
     n0 = 0
@@ -184,7 +184,7 @@ def _kernel_mesh(meshes: Sequence[MeshSurface]) -> tuple:
         n0 += len(v)
     bvh = TriangleBVH(np.concatenate(vs), np.concatenate(ts))
     *arrays, stack = bvh.ray_arrays
-    return (*(np.array(a) for a in arrays), np.ascontiguousarray(np.concatenate(corner)),
+    return (*arrays, np.ascontiguousarray(np.concatenate(corner)),
             np.ascontiguousarray(np.concatenate(geo)), np.ascontiguousarray(np.concatenate(albedo)),
             np.array([stack], np.int64))
 

@@ -51,17 +51,14 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
         return False, False, gap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     flipped = False
     if dq_half.shape[0] > 0 and dist > 1e-12 and 0.0 < params[q, 0] < 1.0 and 0.0 < params[q, 1] < 1.0:
-        # the closest points' separation at t_i (first order: less the first half step's motion dq_half (S, 6) of
-        # the axis points): a pair whose centre lines passed through each other in the first half step (closest
-        # points inside both segments: not a pair going round an end) separates the other way at t_i; its normal
-        # is the t_i side and its gap −(dist + r_a + r_b)
-        e0 = dv0 - (dq_half[a, 0] + dq_half[a, 4] * ta * d3[a, 2] - dq_half[a, 5] * ta * d3[a, 1]) \
-            + (dq_half[b, 0] + dq_half[b, 4] * tb * d3[b, 2] - dq_half[b, 5] * tb * d3[b, 1])
-        e1 = dv1 - (dq_half[a, 1] + dq_half[a, 5] * ta * d3[a, 0] - dq_half[a, 3] * ta * d3[a, 2]) \
-            + (dq_half[b, 1] + dq_half[b, 5] * tb * d3[b, 0] - dq_half[b, 3] * tb * d3[b, 2])
-        e2 = dv2 - (dq_half[a, 2] + dq_half[a, 3] * ta * d3[a, 1] - dq_half[a, 4] * ta * d3[a, 0]) \
-            + (dq_half[b, 2] + dq_half[b, 3] * tb * d3[b, 1] - dq_half[b, 4] * tb * d3[b, 0])
-        flipped = e0 * dv0 + e1 * dv1 + e2 * dv2 < 0.0
+        # the closest points' separation along this normal at t_i (first order: less the first half step's motion
+        # dq_half (S, 6) of the axis points): a pair whose centre lines passed through each other in the first half
+        # step (closest points inside both segments: not a pair going round an end) separates the other way at
+        # t_i; its normal is the t_i side and its gap −(dist + r_a + r_b)
+        m0, m1, m2 = dv0 / dist, dv1 / dist, dv2 / dist
+        flipped = dist - (_twist_normal_speed(dq_half, a, m0, m1, m2, ta * d3[a, 0], ta * d3[a, 1], ta * d3[a, 2])
+                          - _twist_normal_speed(dq_half, b, m0, m1, m2, tb * d3[b, 0], tb * d3[b, 1],
+                                                tb * d3[b, 2])) < 0.0
     if flipped:
         n0, n1, n2 = -dv0 / dist, -dv1 / dist, -dv2 / dist
         gap = -dist - ra - rb
