@@ -1,5 +1,5 @@
 """Collision queries: BVH over triangles, closest points, inside/outside, ray casts, heightmaps,
-distance fields.
+distance fields (grid, analytic, and exact-near-the-mesh :class:`MeshDistanceField`).
 
 - :class:`TriangleBVH` — build once, :meth:`~TriangleBVH.refit` after deformation; closest points,
   winding number / ``contains``, signed distance, first-hit and all-hits ray and segment casts
@@ -21,12 +21,13 @@ from headsim.collide.distance_field import (
     mesh_distance_field,
     obstacle_contacts,
 )
+from headsim.collide.mesh_distance import MeshDistanceField
 from headsim.collide.fibre_bvh import VARIANTS, FibreBVH, QueryStats, RebuildPolicy, fibre_self_contacts
 from headsim.collide.fibres import FibreContacts, FibreSet, fibres_from_arrays, fibres_from_rods
 
 __all__ += [
     "AABB", "KDOP", "OBB", "Sphere", "BoundingVolume", "kdop_directions",
-    "GridDistanceField", "PlaneField", "SphereField", "mesh_distance_field", "obstacle_contacts",
+    "GridDistanceField", "PlaneField", "SphereField", "mesh_distance_field", "obstacle_contacts", "MeshDistanceField",
     "FibreBVH", "VARIANTS", "QueryStats", "RebuildPolicy", "fibre_self_contacts",
     "FibreSet", "FibreContacts", "fibres_from_arrays", "fibres_from_rods",
 ]

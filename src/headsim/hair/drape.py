@@ -18,7 +18,7 @@ and listed in every scene's ``description``):
 * ``terrain`` (§8.6.3): the vertical helical strand onto a bumpy terrain, a 30 × 30 cm slab with rounded edges
   (grid distance field of the smooth surface; fibres can slide off its edge, as the seed's do in Fig. 8.17).
 * ``head``: fibres rooted on the scalp of the bundled head (325 roots/cm², none two closer than 0.28 mm),
-  draping under gravity against the head's narrow-band distance field.
+  draping under gravity against the head's skin (exact distances near it, a 3 mm narrow-band grid beyond).
 
 Friction (``friction``): ``aniso`` — with / against the scales and across from the keratin table
 (wool/wool static dry, Schwartz & Knowles via Sobottka Tab. 2.11: 0.13 / 0.61 / 0.21; the only
@@ -34,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from headsim.collide import GridDistanceField, PlaneField, SphereField
+from headsim.collide import GridDistanceField, MeshDistanceField, PlaneField, SphereField
 from headsim.errors import DivergenceError, ParameterError
 from headsim.hair.drape_pictures import plane_patch, sphere_surface, wrapped_title, write_frames
 from headsim.hair.properties import MASS_DENSITY, MODULI_ROBBINS, friction
@@ -473,7 +473,8 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         # roots at the seed's density (325 /cm²) with no two closer than half its mean spacing (0.28 mm):
         # independent samples put anchored roots closer than a fibre diameter, an overlap no motion removes
         roots, normals = scalp_roots(v, t, F, seed=seed, min_spacing=0.5 / np.sqrt(ROOT_DENSITY))
-        fld = GridDistanceField.from_mesh(v, t, 0.003, band=0.012)
+        # exact distances to the skin within the band of a 3 mm grid (the grid alone reads up to 4 mm off)
+        fld = MeshDistanceField(v, t, 0.003, band=0.012)
         polys = []
         for p0, nr in zip(roots, normals):
             d = nr + np.array([0.0, -0.6, 0.0])
@@ -482,7 +483,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         obstacles = [Obstacle(fld, name="head")]
         mesh = (v, t)
         desc = (f"{len(roots)} fibres × {n} segments, {length * 100:g} cm, rooted on the bundled head's scalp, "
-                f"starting between the skin normal and straight down; head distance field 3 mm; friction {friction_mode}")
+                f"starting between the skin normal and straight down; exact skin distances within 12 mm; friction {friction_mode}")
         dur = 0.5 if duration is None else duration
     nodes = np.concatenate(polys)
     offsets = np.arange(0, len(nodes) + 1, polys[0].shape[0])
@@ -515,7 +516,7 @@ def volume_stability(result: DrapeResult, window: float) -> tuple[float, float]:
 
 def render_surfaces(scene: DrapeScene) -> list:
     """The scene's obstacles as surfaces of the path-traced frames: the spheres and planes analytic, at their
-    iso-level (:class:`headsim.hair.render.Surface`), the grid-field obstacles (terrain, head) as the scene's picture
+    iso-level (:class:`headsim.hair.render.Surface`), the grid and mesh obstacles (terrain, head) as the scene's picture
     mesh (:class:`headsim.hair.render.MeshSurface`; the terrain's 0.1 mm iso-level offset is not drawn)."""
     from headsim.hair.render import MeshSurface, Surface
 

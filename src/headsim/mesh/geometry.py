@@ -145,3 +145,37 @@ def tet_signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum(
         "ij,ij->i", np.cross(vertices[tets[:, 1]] - a, vertices[tets[:, 2]] - a), vertices[tets[:, 3]] - a
     ) / 6.0
+
+
+def angle_weighted_vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 unit vertex pseudo-normals: face normals weighted by the triangle's angle at the
+    vertex (Thürmer & Wüthrich 1998; Bærentzen & Aanæs 2005, the normal whose sign test is exact at a
+    vertex); zero rows for vertices of degenerate triangles only."""
+    fn = face_normals(vertices, triangles)
+    acc = np.zeros((len(vertices), 3))
+    for k in range(3):
+        p = vertices[triangles[:, k]]
+        e1 = vertices[triangles[:, (k + 1) % 3]] - p
+        e2 = vertices[triangles[:, (k + 2) % 3]] - p
+        cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(
+            np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
+        np.add.at(acc, triangles[:, k], np.arccos(np.clip(cosang, -1.0, 1.0))[:, None] * fn)
+    norm = np.linalg.norm(acc, axis=1, keepdims=True)
+    return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
+
+
+def edge_pseudo_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) float64 unit pseudo-normals of every triangle's edges (edge k joins corners k and k + 1):
+    the sum of the unit normals of the triangles sharing the edge (Bærentzen & Aanæs 2005); a boundary
+    edge of an open mesh gets its one triangle's normal."""
+    fn = face_normals(vertices, triangles)
+    a = triangles
+    b = np.roll(triangles, -1, axis=1)
+    key = np.sort(np.stack([a, b], -1).reshape(-1, 2), axis=1)  # (3m, 2): edge k of triangle i at 3i + k
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    acc = np.zeros((inv.max() + 1, 3))
+    np.add.at(acc, inv, np.repeat(fn, 3, axis=0))
+    out = acc[inv]
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0).reshape(-1, 3, 3)
