@@ -585,6 +585,14 @@ resting step −5 to −11 % on one thread, within the noise on two). This bench
 session's last tree: 1.23 s per step, the floor 0.53 s (0.43 of it); without it, alternated with the session's start
 tree (4923f66, a worktree): 1.27 / 1.27 against 1.29 / 1.46 s per step. The machine ran ≈ 20 % slower than in the
 previous session, where the start tree gave 1.03–1.05 s per step.
+
+Thirty-first session, measured and not kept: the last pass's velocity solve and its split push-out do not depend on
+each other (the push-out's gaps, warm start and joint targets are known before the velocity solve), so the two could
+run side by side, each on one core, with the serial kernel (whose iterates are bitwise the parallel one's). On the
+captured resting solve (t = 1.003 s, 191 k rows and candidates, 30 sweeps) replayed with a ``nogil`` build of the
+serial kernel: one solve 0.174–0.242 s with the parallel kernel, 0.381–0.440 s serial (the two-domain kernel scales
+by 2.2 on the 2 cores), and two serial solves in two threads 0.456–0.465 s against 0.35–0.48 s for two parallel solves
+one after the other: nothing to gain, the sweeps are bound by memory traffic, not by idle cores.
 """
 
 from __future__ import annotations

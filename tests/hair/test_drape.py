@@ -258,7 +258,7 @@ STABLE_FRACTION = 0.05
 KE_FRACTION = 1e-2
 
 
-HELICAL_MODES = (("aniso", 0.75), ("iso", 1.5), ("none", 0.7))
+HELICAL_MODES = (("aniso", 2.5), ("iso", 1.5), ("none", 0.7))
 
 
 def _helical_run(mode, duration):
@@ -311,8 +311,8 @@ def _shared_runs(directory, jobs, wait_s=1800.0):
 def helical_runs(tmp_path_factory):
     """The reference scene (§8.6.2, the derived default geometry, rest shape straight) reduced to 7 fibres
     × 30 segments (1 cm; the seed: 355 × 100), Δt = 1 ms, 30 cm fibres, recorded every 10 ms: none to the
-    seed's 0.7 s, aniso to 0.75 s (the seed's "ca. 0,7 Sekunden" ± 0.05 s), iso to 1.5 s (for the stable
-    volume; its frames at 0.65–0.75 s for Table 8.1). Returns {mode: (result, volumes (frames,) m³)}. Each run
+    seed's 0.7 s, iso to 1.5 s and aniso to 2.5 s (for the stable volume; their frames at 0.65–0.75 s, the seed's
+    "ca. 0,7 Sekunden" ± 0.05 s, for Table 8.1). Returns {mode: (result, volumes (frames,) m³)}. Each run
     is made once per test session (:func:`_shared_runs`, in the directory this session's xdist workers share;
     a run without xdist keeps them in its own temporary directory)."""
     import os
@@ -381,13 +381,32 @@ def test_reference_scene_settles_to_a_stable_volume_with_isotropic_friction(heli
     0.2 % and 3.1e-4, 3.9e-4 before ``joint_gap_fraction`` = 0; 19 × 30: 0.2 %, 2.8e-4; 61 × 50: 0.2 %,
     3.2e-5, both before; the full 355 × 100 scene, run once by ``benchmarks/bench_drape_volume.py --modes iso``:
     0.3 %, 2.8e-5). The strand rests partly over the
-    sphere's rim (box ≈ 13 × 16 cm wide, 20 cm tall, against the seed's 8.7 × 14.1 cm, 8.4 cm tall). Not asserted for the
-    anisotropic model, which does not settle by 1.5 s at 7 × 30 (29 %, 4e-2), 19 × 30 (16 %, 1.0e-2),
-    61 × 50 (15 %, 1.3e-2) or full size (18 %, 2.8e-3): see ``benchmarks/bench_drape_volume.py``."""
+    sphere's rim (box ≈ 13 × 16 cm wide, 20 cm tall, against the seed's 8.7 × 14.1 cm, 8.4 cm tall). The
+    anisotropic strand takes longer: see the next test."""
     from headsim.hair.drape import volume_stability
 
     res, _ = helical_runs["iso"]
     assert res.times[-1] == pytest.approx(1.5)
+    spread, ke = volume_stability(res, 0.2)
+    assert spread < STABLE_FRACTION
+    assert ke < KE_FRACTION
+
+
+def test_reference_scene_settles_to_a_stable_volume_with_anisotropic_friction(helical_runs):
+    """§8.6.2: the strand comes to rest "nach wenigen Sekunden Simulationszeit" (after a few seconds of simulated
+    time). With the anisotropic law (wool/wool 0.13 / 0.61 / 0.21: across the fibres it slides at less than half the
+    isotropic μ = 0.47) it is still moving at 1.5 s, but by 2.5 s the same criteria as the isotropic strand's hold
+    (last 0.2 s). Measured (issue 10, 7 × 30, every 0.25 s from 0.5 s: volume range over the preceding 0.2 s,
+    kinetic energy / peak): 60 %, 17 %, 102 %, 27 %, 25 % (1.5 s), 14 %, 2.3 % (2.0 s), 0.4 %, 0.5 % (2.5 s) and below
+    0.5 % to 5 s; kinetic energy 4.3e-3 (1.5 s), 3.3e-4 (2.0 s), 7.3e-5 (2.5 s), 6.9e-6 (5 s). A larger strand takes
+    longer: 19 × 30 swings (27 % at 1.5 s, 49 % at 2.5 s, 8.4 % at 3.5 s; fibres slide off the sphere's side) and meets
+    the criteria from 3.75 s on (1.6–4.3 % to 7 s, kinetic energy 7.9e-5 at 3.75 s, 6e-6 at 7 s), creeping by ≈ 1 % of
+    its volume per second from 5.5 s (measured once, 380 s of computing). At 1.5 s: 61 × 50 15 %, full size 18 % (see
+    ``benchmarks/bench_drape_volume.py``); not run longer."""
+    from headsim.hair.drape import volume_stability
+
+    res, _ = helical_runs["aniso"]
+    assert res.times[-1] == pytest.approx(2.5)
     spread, ke = volume_stability(res, 0.2)
     assert spread < STABLE_FRACTION
     assert ke < KE_FRACTION
