@@ -86,8 +86,8 @@ class MeshDistanceField(DistanceField):
         d = p - cp.point
         sign = np.where(np.einsum("ij,ij->i", d, n) < 0.0, -1.0, 1.0)
         dist = cp.distance
-        grad = np.divide(d, dist[:, None], out=n.copy(), where=dist[:, None] > 1e-12) * np.where(dist > 1e-12, sign,
-                                                                                                1.0)[:, None]
+        off = dist[:, None] > 1e-12  # on the surface (to rounding) the gradient is the feature's pseudo-normal
+        grad = np.where(off, sign[:, None] * d / np.where(off, dist[:, None], 1.0), n)
         return sign * dist, grad
 
     def distance(self, points):
