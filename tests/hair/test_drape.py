@@ -102,7 +102,7 @@ def test_head_scene_roots_are_spaced_and_the_fibres_land_on_the_head():
     keeps 28 µm, the 40 × 30 one 22.5 µm), and no fibre axis (nodes and segment midpoints, every step) enters the
     skin, measured against the mesh by libigl (the criterion of ``test_draped_strand_sinks_less_than_a_fibre_radius``:
     an overlap of a radius or more puts the axis on the surface). Measured: closest 22 µm (0.63 r) with the scene's
-    exact mesh distances; with the 3 mm grid field alone the axes went 32 µm into the skin in 40 of the 451 steps."""
+    exact mesh distances; with the 3 mm grid field alone the axes went 32 µm into the skin in 39 of the 451 steps (40 before the band grid was capped per segment)."""
     import igl
     from scipy.spatial import cKDTree
 
@@ -258,7 +258,7 @@ STABLE_FRACTION = 0.05
 KE_FRACTION = 1e-2
 
 
-HELICAL_MODES = (("aniso", 2.5), ("iso", 1.5), ("none", 0.7))
+HELICAL_MODES = (("aniso", 4.0), ("iso", 1.5), ("none", 0.7))
 
 
 def _helical_run(mode, duration):
@@ -311,7 +311,7 @@ def _shared_runs(directory, jobs, wait_s=1800.0):
 def helical_runs(tmp_path_factory):
     """The reference scene (§8.6.2, the derived default geometry, rest shape straight) reduced to 7 fibres
     × 30 segments (1 cm; the seed: 355 × 100), Δt = 1 ms, 30 cm fibres, recorded every 10 ms: none to the
-    seed's 0.7 s, iso to 1.5 s and aniso to 2.5 s (for the stable volume; their frames at 0.65–0.75 s, the seed's
+    seed's 0.7 s, iso to 1.5 s and aniso to 4 s (for the stable volume; their frames at 0.65–0.75 s, the seed's
     "ca. 0,7 Sekunden" ± 0.05 s, for Table 8.1). Returns {mode: (result, volumes (frames,) m³)}. Each run
     is made once per test session (:func:`_shared_runs`, in the directory this session's xdist workers share;
     a run without xdist keeps them in its own temporary directory)."""
@@ -395,18 +395,21 @@ def test_reference_scene_settles_to_a_stable_volume_with_isotropic_friction(heli
 def test_reference_scene_settles_to_a_stable_volume_with_anisotropic_friction(helical_runs):
     """§8.6.2: the strand comes to rest "nach wenigen Sekunden Simulationszeit" (after a few seconds of simulated
     time). With the anisotropic law (wool/wool 0.13 / 0.61 / 0.21: across the fibres it slides at less than half the
-    isotropic μ = 0.47) it is still moving at 1.5 s, but by 2.5 s the same criteria as the isotropic strand's hold
-    (last 0.2 s). Measured (issue 10, 7 × 30, every 0.25 s from 0.5 s: volume range over the preceding 0.2 s,
-    kinetic energy / peak): 60 %, 17 %, 102 %, 27 %, 25 % (1.5 s), 14 %, 2.3 % (2.0 s), 0.4 %, 0.5 % (2.5 s) and below
-    0.5 % to 5 s; kinetic energy 4.3e-3 (1.5 s), 3.3e-4 (2.0 s), 7.3e-5 (2.5 s), 6.9e-6 (5 s). A larger strand takes
-    longer: 19 × 30 swings (27 % at 1.5 s, 49 % at 2.5 s, 8.4 % at 3.5 s; fibres slide off the sphere's side) and meets
-    the criteria from 3.75 s on (1.6–4.3 % to 7 s, kinetic energy 7.9e-5 at 3.75 s, 6e-6 at 7 s), creeping by ≈ 1 % of
-    its volume per second from 5.5 s (measured once, 380 s of computing). At 1.5 s: 61 × 50 15 %, full size 18 % (see
-    ``benchmarks/bench_drape_volume.py``); not run longer."""
+    isotropic μ = 0.47) it is still moving at 1.5 s, but by 4 s the same criteria as the isotropic strand's hold
+    (last 0.2 s). When it comes to rest depends on the trajectory, which any change of the solver reshuffles (a
+    fibre that swings off the sphere's side takes a second or more to come back); measured (issue 10, thirty-first
+    session; volume range over the preceding 0.2 s / kinetic energy over its peak):
+
+    * 7 × 30 (this test's scene): 25 % / 4.3e-3 at 1.5 s, 0.5 % / 7.3e-5 at 2.5 s, 0.1 % / 2.2e-5 at 4 s; with the
+      relative band's grid capped at 100 nodes per segment (``chain_band.NODES_PER_SEGMENT``, the same session) a
+      fibre swings off (49 % at 2.5 s): 3.2 % / 1.3e-4 at 3.5 s, 3.2 % / 6.2e-5 at 4 s, 2.4 % / 1.1e-5 at 5 s;
+    * 19 × 30: 8.4 % at 3.5 s, then 1.6–4.3 % from 3.75 to 7 s (2.4 % / 5.7e-5 at 4 s), creeping by ≈ 1 % of its
+      volume per second from 5.5 s;
+    * 61 × 50 and full size: 15 % and 18 % at 1.5 s (``benchmarks/bench_drape_volume.py``), not run longer."""
     from headsim.hair.drape import volume_stability
 
     res, _ = helical_runs["aniso"]
-    assert res.times[-1] == pytest.approx(2.5)
+    assert res.times[-1] == pytest.approx(4.0)
     spread, ke = volume_stability(res, 0.2)
     assert spread < STABLE_FRACTION
     assert ke < KE_FRACTION

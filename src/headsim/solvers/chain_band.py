@@ -47,6 +47,11 @@ REFERENCE_CELL = 1e-3
 # 57 × 78 mm) 1 / 1.4 / 2 / 3 mm cells: detection 0.39 / 0.30 / 0.27 / 0.27 s per step for 364 / 362 / 372 / 392 k
 # reserve pairs; ringlet start (52 k nodes at 1 mm) 0.7 / 1 / 1.4 / 2 / 3 mm: 0.67 / 0.56 / 0.58 / 0.72 / 0.79 s
 MAX_REFERENCE_NODES = 200_000
+# and at most this many nodes per segment (at least MIN_REFERENCE_NODES): a small strand spread wide got the whole
+# 200 k-node grid, whose passes then cost more than its detection and solve (7 × 30 helical strand, 20 × 20 × 12
+# cm: 20 ms of a 41 ms step at 200 k nodes, 3.8 ms of 24.5 ms at 21 k, with 213 candidates instead of 249 per step)
+NODES_PER_SEGMENT = 100
+MIN_REFERENCE_NODES = 4096
 # sample spacing along a segment / cell: the gathering, and the deviation bound (whose between-sample term
 # δ(|ω| + L)/2 shrinks with it)
 GATHER_SPACING = 0.5
@@ -72,10 +77,11 @@ class LocalMotionBound:
         ends = np.abs(d3) * half[:, None]
         lo, hi = (x - ends).min(axis=0), (x + ends).max(axis=0)
         cell = self._cell0
+        max_nodes = min(MAX_REFERENCE_NODES, max(MIN_REFERENCE_NODES, NODES_PER_SEGMENT * len(x)))
         while True:
             pad = int(np.ceil(reach / cell)) + 3
             dims = (np.floor((hi - lo) / cell).astype(np.int64) + 2 * pad + 2)
-            if np.prod(dims.astype(float)) <= MAX_REFERENCE_NODES:
+            if np.prod(dims.astype(float)) <= max_nodes:
                 break
             cell *= 1.25
         self.cell = cell
