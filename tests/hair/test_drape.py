@@ -102,7 +102,8 @@ def test_head_scene_roots_are_spaced_and_the_fibres_land_on_the_head():
     keeps 28 µm, the 40 × 30 one 22.5 µm), and no fibre axis (nodes and segment midpoints, every step) enters the
     skin, measured against the mesh by libigl (the criterion of ``test_draped_strand_sinks_less_than_a_fibre_radius``:
     an overlap of a radius or more puts the axis on the surface). Measured: closest 22 µm (0.63 r) with the scene's
-    exact mesh distances; with the 3 mm grid field alone the axes went 32 µm into the skin in 39 of the 451 steps (40 before the band grid was capped per segment)."""
+    exact mesh distances; with the 3 mm grid field alone the axes went 32 µm into the skin in 39 of the 451 steps
+    (40 before the band grid was capped per segment)."""
     import igl
     from scipy.spatial import cKDTree
 

@@ -483,7 +483,8 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         obstacles = [Obstacle(fld, name="head")]
         mesh = (v, t)
         desc = (f"{len(roots)} fibres × {n} segments, {length * 100:g} cm, rooted on the bundled head's scalp, "
-                f"starting between the skin normal and straight down; skin distances exact within 6.8 mm (3 mm grid, 12 mm band); friction {friction_mode}")
+                "starting between the skin normal and straight down; skin distances exact within 6.8 mm (3 mm grid, "
+                f"12 mm band); friction {friction_mode}")
         dur = 0.5 if duration is None else duration
     nodes = np.concatenate(polys)
     offsets = np.arange(0, len(nodes) + 1, polys[0].shape[0])
