@@ -1,9 +1,11 @@
-"""Angle-weighted vertex normals and edge pseudo-normals (mesh.geometry), on a cube where both are known."""
+"""The pseudo-normals of the exact mesh distance (edge pseudo-normals of mesh.geometry, angle-weighted vertex
+normals of MeshDistanceField), on a cube where both are known."""
 
 import numpy as np
 import trimesh
 
-from headsim.mesh.geometry import angle_weighted_vertex_normals, edge_pseudo_normals, face_normals, vertex_normals
+from headsim.collide import MeshDistanceField
+from headsim.mesh.geometry import edge_pseudo_normals, face_normals, vertex_normals
 
 
 def _cube():
@@ -17,7 +19,7 @@ def test_cube_corner_normals_are_the_diagonals_whatever_the_triangulation():
     The area-weighted normal of the same corner is not (a corner touched by two triangles of one face and
     one of another weighs them 2:1)."""
     v, t = _cube()
-    n = angle_weighted_vertex_normals(v, t)
+    n = MeshDistanceField(v, t, spacing=0.5)._vertex_normal
     np.testing.assert_allclose(n, v / np.sqrt(3.0), atol=1e-14)
     assert np.abs(vertex_normals(v, t) - v / np.sqrt(3.0)).max() > 0.2
 

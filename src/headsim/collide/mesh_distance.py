@@ -30,7 +30,7 @@ import numpy as np
 from headsim.collide.bvh import TriangleBVH
 from headsim.collide.distance_field import DistanceField, GridDistanceField, _points
 from headsim.errors import ParameterError
-from headsim.mesh.geometry import angle_weighted_vertex_normals, edge_pseudo_normals, face_normals
+from headsim.mesh.geometry import edge_pseudo_normals, face_normals
 
 __all__ = ["MeshDistanceField"]
 
@@ -59,7 +59,10 @@ class MeshDistanceField(DistanceField):
         self.far = self.grid.far
         self._face_normal = face_normals(v, t)
         self._edge_normal = edge_pseudo_normals(v, t)
-        self._vertex_normal = angle_weighted_vertex_normals(v, t)
+        import trimesh
+
+        # trimesh's vertex normals are weighted by the triangles' corner angles: the vertex pseudo-normal
+        self._vertex_normal = np.asarray(trimesh.Trimesh(v, t, process=False).vertex_normals)
         self._triangles = t
         if not np.isfinite(self.band):
             raise ParameterError("a mesh distance field needs a finite band")
@@ -100,8 +103,12 @@ class MeshDistanceField(DistanceField):
     def gradient(self, points, scheme: str = "forward"):
         """(n, 3) ∇Φ: exact (unit) within the band; the grid's ``scheme`` differences outside it."""
         p = _points(points)
-        phi, near = self._near(p)
-        g = self.grid.gradient(p, scheme)
+        _, near = self._near(p)
+        g = np.empty_like(p)
+        far = np.ones(len(p), bool)
+        far[near] = False
+        if far.any():
+            g[far] = self.grid.gradient(p[far], scheme)
         if len(near):
             g[near] = self._exact(p[near])[1]
         return g

@@ -147,23 +147,6 @@ def tet_signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     ) / 6.0
 
 
-def angle_weighted_vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(n, 3) float64 unit vertex pseudo-normals: face normals weighted by the triangle's angle at the
-    vertex (Thürmer & Wüthrich 1998; Bærentzen & Aanæs 2005, the normal whose sign test is exact at a
-    vertex); zero rows for vertices of degenerate triangles only."""
-    fn = face_normals(vertices, triangles)
-    acc = np.zeros((len(vertices), 3))
-    for k in range(3):
-        p = vertices[triangles[:, k]]
-        e1 = vertices[triangles[:, (k + 1) % 3]] - p
-        e2 = vertices[triangles[:, (k + 2) % 3]] - p
-        cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(
-            np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
-        np.add.at(acc, triangles[:, k], np.arccos(np.clip(cosang, -1.0, 1.0))[:, None] * fn)
-    norm = np.linalg.norm(acc, axis=1, keepdims=True)
-    return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
-
-
 def edge_pseudo_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(m, 3, 3) float64 unit pseudo-normals of every triangle's edges (edge k joins corners k and k + 1):
     the sum of the unit normals of the triangles sharing the edge (Bærentzen & Aanæs 2005); a boundary
