@@ -593,6 +593,16 @@ captured resting solve (t = 1.003 s, 191 k rows and candidates, 30 sweeps) repla
 serial kernel: one solve 0.174–0.242 s with the parallel kernel, 0.381–0.440 s serial (the two-domain kernel scales
 by 2.2 on the 2 cores), and two serial solves in two threads 0.456–0.465 s against 0.35–0.48 s for two parallel solves
 one after the other: nothing to gain, the sweeps are bound by memory traffic, not by idle cores.
+
+Thirty-second session (``ChainOptions.post_stabilisation`` and ``step_halvings``, both on by default): this
+command at rest, alternated on a quiet machine: 0.95 s per step with the post-stabilisation against 0.76 s with
+``--set post_stabilisation=False`` (its correction solve runs every step on the pinched root bundle, whose overlaps
+it lowers: > 10 µm next to the roots 244 against 420, largest 44 against 67 µm; elsewhere 1 against 4); capped at
+10 sweeps it cost 0.82 s but let the plane 20 × 50 strand's overlaps and obstacle penetrations grow back (2,528
+pair-steps > 10 µm against 478, 152 µm into the plane against 62), so it runs to ``qp_iterations`` like the other
+solves. No step of this state is halved (the energy falls in every one). The full comparison (``--steps 3
+--loop-steps 1`` from the saved state, machine shared with other runs): coupled 1.85 s per step, per-body batched
+4.13 s, one fibre at a time 6.04 s (batched per-body 1.5 × the loop; coupled 0.31 of the loop).
 """
 
 from __future__ import annotations
@@ -661,6 +671,7 @@ def _time(solver, scene, state, steps):
         counts.setdefault("qp_capped", []).append(st.qp_capped)
         counts.setdefault("max_joint_gap", []).append(st.max_joint_gap)
         counts.setdefault("kinetic_energy", []).append(st.kinetic_energy)
+        counts.setdefault("substeps", []).append(st.substeps)
     counts = {k: float(np.mean(v)) for k, v in counts.items()}
     return state, (time.perf_counter() - w0) / steps, (time.process_time() - c0) / steps, phases, counts
 
@@ -737,7 +748,7 @@ def main():
               f"{nc['contacts']:.0f}{rows}, max penetration {nc['max_penetration']:.3e} m, "
               f"kinetic energy {nc['kinetic_energy']:.4e} J, max joint gap {nc['max_joint_gap']:.3e} m, "
               f"Gauss–Seidel sweeps (largest solve) {nc['qp_sweeps']:.0f}, solves per step ending at the sweep "
-              f"cap {nc['qp_capped']:.1f}")
+              f"cap {nc['qp_capped']:.1f}, solver steps per step {nc['substeps']:.2f} (ChainOptions.step_halvings)")
         print(f"[{coupling}] batched: {wall:.4f} s/step wall, {cpu:.4f} s/step CPU; phases (s/step): "
               + _per_step(phases, args.steps))
         if coupling == "coupled":

@@ -542,12 +542,14 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
               max_speed: float = 20.0) -> DrapeResult:
     """Step the scene; record polylines every ``record_every`` steps and the per-step statistics.
 
-    Raises DivergenceError (never returns NaN) when a state is non-finite or a segment moves faster
-    than ``max_speed`` m/s (free fall from the scenes' heights stays below 2 m/s)."""
+    Raises DivergenceError (never returns NaN) when a state is non-finite, a segment moves faster
+    than ``max_speed`` m/s (free fall from the scenes' heights stays below 2 m/s) or a joint gap opens wider than
+    the shortest segment's half length (the chains tore apart: the seed's "Kettenabriss", §8.6.5.1)."""
     steps = scene.n_steps if n_steps is None else int(n_steps)
     every = record_every or max(1, steps // 30)
     solver = ChainSolver(scene.options, fibre_loop=fibre_loop)
     state = scene.state
+    tear = float(scene.model.half_length.min())
     times, frames = [0.0], [polylines_from_state(scene.model, state)]
     cols = {k: [] for k in ("step_time", "kinetic", "total_energy", "contacts", "fibre_contacts", "obstacle_contacts",
                             "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps", "qp_capped",
@@ -561,6 +563,10 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
             raise DivergenceError(f"{scene.name}: a segment moves at {vmax:.3g} m/s at t = {state.time:.4g} s "
                                   f"(dt = {scene.dt:g} s); the simulation diverged — reduce dt or raise "
                                   "qp_iterations / harmonisation_iterations")
+        if not st.max_joint_gap <= tear:
+            raise DivergenceError(f"{scene.name}: a joint gap opened to {st.max_joint_gap * 1e3:.3g} mm at t = "
+                                  f"{state.time:.4g} s, more than half a segment ({tear * 1e3:.3g} mm): the fibres "
+                                  f"tore apart (dt = {scene.dt:g} s; the seed's 1 ms is safe for 70 µm fibres)")
         cols["step_time"].append(st.time)
         cols["kinetic"].append(st.kinetic_energy)
         cols["total_energy"].append(st.total_energy)

@@ -56,6 +56,9 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    is taken from the gaps of that last mid-step state (first order from the detection state) and from the
    end-of-step obstacle distances.
 4. Second half step q^{i+1} = q^{i+½} + ½Δt u^{i+1}.
+5. Checks (ours): a step that raised the total energy is taken again as two half steps (``step_halvings``),
+   and the end state is post-stabilised, its deeper overlaps moved apart in position only
+   (``post_stabilisation``, Cline & Pai 2003).
 
 Gap handling (our additions, both stated): the normal bound is v_N − g/Δt for a separated pair
 with gap g > 0 inside the detection band (a speculative contact: it only acts if the pair would
@@ -265,6 +268,21 @@ def _spin_carried(w: np.ndarray, R: np.ndarray, R_mid: np.ndarray, inertia: np.n
     return _apply_scaled(R_mid, 1.0 / inertia, _apply_scaled(R, inertia, w))
 
 
+def _merged_stats(first: StepStats, second: StepStats) -> StepStats:
+    """The statistics of a step taken as two halves (``ChainOptions.step_halvings``): the second half's state
+    values, the larger of the extremes, the sums of the counts and phase times."""
+    out = replace(second)
+    out.seconds = {k: first.seconds.get(k, 0.0) + second.seconds.get(k, 0.0)
+                   for k in set(first.seconds) | set(second.seconds)}
+    for name in ("newton_iterations", "qp_sweeps", "qp_residual", "max_penetration"):
+        setattr(out, name, max(getattr(first, name), getattr(second, name)))
+    for name in ("qp_capped", "exact_solves", "candidate_redos", "band_extensions", "reserve_resolves",
+                 "promoted_rows", "substeps"):
+        setattr(out, name, getattr(first, name) + getattr(second, name))
+    out.energy_bound = first.energy_bound + second.energy_bound
+    return out
+
+
 def _stored_impulses(rows, impulses):
     """(sorted keys, λ, friction) of the rows of a solve's ``impulses`` = (λ, friction) that carry a normal
     impulse: the next step's warm start (:meth:`ChainSolver._warm_start_impulses`); None without a solve."""
@@ -313,6 +331,14 @@ def _fibre_domains(fa: np.ndarray, fb: np.ndarray, n_fibres: int, n_domains: int
 
     split(np.arange(n_fibres), int(n_domains), 0)
     return part
+
+
+# ChainOptions.step_halvings: a step whose total energy rises by more than this fraction of the kinetic and spring
+# energies is halved (round-off of the energy sums is ≈ 1e-15 of them)
+ENERGY_ROUNDOFF = 1e-9
+# ChainOptions.post_stabilisation: the overlap (fraction of the radius) a correction leaves; it runs where a pair
+# overlaps by twice that
+POST_SLOP_FRACTION = 0.1
 
 
 def _obstacle_key(obstacle_index, segments, kind, n_segments):
@@ -384,6 +410,8 @@ class ChainSolver:
         self._band_extensions = 0  # candidate_band="relative": widened detections of the last step
         self._widen_seconds = 0.0  # candidate_band="relative": their time, s
         self._rel_grid = None  # candidate_band="relative": the LocalMotionBound of this step's detection state
+        self._post_input = None  # post_stabilisation: (rows, mid-step rotations) of the last step
+        self._last_energy = None  # (the state step() returned last, its total energy, J)
 
     @staticmethod
     def _writable(a):
@@ -843,6 +871,81 @@ class ChainSolver:
                            root_sweeps=int(o.root_sweeps), root_segments=int(o.root_segments))
         return u
 
+    def _end_fibre_rows(self, model, rows, x, R):
+        """The step's fibre rows (primary) at the state x, R: (body, partner, normal, lever, partner lever, gap) of
+        the closest points of the axes (:func:`~headsim.solvers._kernels.chains_pairs.end_state_pairs`)."""
+        sel = np.nonzero(rows.primary & (rows.partner >= 0))[0]
+        body, partner = np.ascontiguousarray(rows.body[sel]), np.ascontiguousarray(rows.partner[sel])
+        n = len(sel)
+        normal, lever, plever, gap = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+        if n:
+            (KP.end_state_pairs_parallel if model.n_segments >= self.options.parallel_threshold
+             else KP.end_state_pairs)(body, partner, np.ascontiguousarray(x), np.ascontiguousarray(R[:, :, 2]),
+                                      model.half_length, model.radius, normal, lever, plever, gap)
+        return body, partner, normal, lever, plever, gap
+
+    def _end_obstacle_rows(self, model, rows, x, R, R_mid, obstacles):
+        """The step's obstacle rows at the state x, R: the row's axis point (its contact point + r n at the mid
+        state R_mid, carried with the segment) against its obstacle's field: (body, −1, normal, lever, 0, gap)."""
+        sel = np.nonzero(rows.primary & (rows.partner < 0))[0]
+        sb = np.ascontiguousarray(rows.body[sel])
+        r = model.radius[sb]
+        local = np.einsum("kji,kj->ki", R_mid[sb], rows.lever[sel] + r[:, None] * rows.normal[sel])
+        c = x[sb] + np.einsum("kij,kj->ki", R[sb], local)
+        which = ((-1 - rows.key[sel]) // 3) // model.n_segments  # _obstacle_key
+        gap, normal = np.empty(len(sel)), np.empty((len(sel), 3))
+        for i, ob in enumerate(obstacles):
+            m = which == i
+            if m.any():
+                gap[m] = ob.field.distance(c[m]) - ob.level - r[m]
+                normal[m] = ob.field.normal(c[m])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+        return sb, np.full(len(sb), -1, np.int64), normal, c - r[:, None] * normal - x[sb], np.zeros((len(sb), 3)), gap
+
+    def _post_stabilise(self, model, rows, x, R, R_mid, dt, obstacles):
+        """Post-stabilisation (Cline & Pai 2003; ``ChainOptions.post_stabilisation``). The step's contact rows are
+        evaluated again at its end state x, R (fibre pairs: the closest points of their axes now; obstacle rows: the
+        field at the row's axis point), and where one overlaps by more than 2 s (s = :data:`POST_SLOP_FRACTION` × its
+        radius), the fibres of those rows get a position-only correction: min ½‖Δu‖²_M (with the joint springs'
+        rows) s.t. Δt J_α Δu ≥ −(g_α + s) for every row of theirs within a radius of contact, their joints' anchors
+        moving together; q ← q + Δt Δu (exponential map), velocities unchanged. Returns the corrected (x, R)."""
+        o = self.options
+        fib = model.segment_fibre
+        parts = [self._end_fibre_rows(model, rows, x, R)]
+        if obstacles and (rows.partner < 0).any():
+            parts.append(self._end_obstacle_rows(model, rows, x, R, R_mid, obstacles))
+        body, partner, normal, lever, plever, gap = (np.concatenate(z) for z in zip(*parts))
+        r = model.radius[body]
+        deep = gap < -2.0 * POST_SLOP_FRACTION * r
+        if not deep.any():
+            return x, R
+        hot = np.zeros(model.n_fibres + 1, bool)  # index −1 (an obstacle partner) stays False
+        hot[fib[body[deep]]] = True
+        pf = np.where(partner >= 0, fib[np.maximum(partner, 0)], -1)
+        hot[pf[deep]] = True
+        hot[-1] = False
+        near = np.nonzero((gap < r) & (hot[fib[body]] | hot[pf]))[0]
+        body, partner, normal, lever, plever, gap, r = (np.ascontiguousarray(a[near]) for a in
+                                                        (body, partner, normal, lever, plever, gap, r))
+        k = len(body)
+        sub = _Rows(body, partner, normal, lever, plever, gap, partner < 0, np.ones(k, bool), np.zeros(k, np.int64))
+        S = model.n_segments
+        du = np.zeros((S, 6))
+        jk, jl, jrk, jrl, jt, jc, jw0 = self._joint_rows(model, sub, x, R, dt, du)
+        target = np.ascontiguousarray(-(gap + POST_SLOP_FRACTION * r) / dt)
+        par = S >= o.parallel_threshold
+        KC.project_coupled(body, partner, normal, lever, plever, target, du, self._writable(model.mass),
+                           np.ascontiguousarray(R), self._writable(model.inertia), np.zeros(0), np.zeros(0), 0.0,
+                           int(o.qp_iterations), float(o.contact_tolerance), np.zeros(k), np.zeros((k, 2)), jk, jl,
+                           jrk, jrl, np.ascontiguousarray(jt), jc, jw0, _chain_offsets(jk, jl), -1, par,
+                           momentum=self._momentum, root_sweeps=int(o.root_sweeps), root_segments=int(o.root_segments),
+                           joints_last=True)
+        x_out, R_out, w_out = np.empty_like(x), np.empty_like(R), np.empty((S, 3))
+        (K.half_step if par else K.half_step_serial)(x, R, np.ascontiguousarray(du[:, :3]),
+                                                     np.ascontiguousarray(du[:, 3:]), model.inertia, dt, x_out,
+                                                     R_out, w_out)
+        return x_out, R_out
+
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
                   x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False,
                   tol_scale=1.0, sweep_cap=None, extend_cap=True, joint_target=None):
@@ -1158,10 +1261,75 @@ class ChainSolver:
     # -- step ----------------------------------------------------------------------------------------
     def step(self, model: ChainModel, state: ChainState, dt: float, obstacles=()) -> ChainState:
         """Advance by Δt (s); obstacles: sequence of :class:`Obstacle`. Raises DivergenceError on
-        non-finite results."""
+        non-finite results. A step that would raise the total energy is taken as two halves instead
+        (``ChainOptions.step_halvings``); the end state is post-stabilised (``ChainOptions.post_stabilisation``)."""
         if not dt > 0:
             raise ParameterError(f"dt must be > 0 s, got {dt}")
-        return self._step(model, state, dt, obstacles, 0)
+        new = self._energy_checked_step(model, state, dt, obstacles, int(self.options.step_halvings))
+        if self._post_input is not None:
+            t0 = time.perf_counter()
+            rows, R_mid = self._post_input
+            x, R = self._post_stabilise(model, rows, new.position, new.rotation, R_mid, dt, obstacles)
+            st = self.last_stats
+            if x is not new.position:
+                if not (np.isfinite(x).all() and np.isfinite(R).all()):
+                    raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "
+                                          f"(dt = {dt:g} s); reduce dt")
+                new = ChainState(x, R, new.velocity, new.angular_velocity, new.time)
+                kin, spring, gap = chain_energies(model, new)
+                st.kinetic_energy, st.spring_energy = float(kin.sum()), float(spring.sum())
+                st.potential_energy = potential_energy(model, new, np.asarray(self.options.gravity, float))
+                st.max_joint_gap = float(gap.max(initial=0.0))
+            st.seconds["contacts"] = st.seconds.get("contacts", 0.0) + time.perf_counter() - t0
+            st.seconds["total"] = st.seconds.get("total", 0.0) + time.perf_counter() - t0
+        self._last_energy = (new, self.last_stats.total_energy)
+        return new
+
+    def _state_energy(self, model, state) -> float:
+        """Total energy (kinetic + springs + gravity, J) of ``state``; the last step's value when it is that step's
+        result."""
+        if self._last_energy is not None and self._last_energy[0] is state:
+            return self._last_energy[1]
+        kin, spring, _ = chain_energies(model, state)
+        return float(kin.sum() + spring.sum()) + potential_energy(model, state, np.asarray(self.options.gravity, float))
+
+    def _scale_warm(self, factor):
+        """Scale the stored warm-start impulses (normal and friction, N s) by ``factor``: impulses of resting
+        contacts are proportional to the step (a halved step starts from half of them)."""
+        for name in ("_warm", "_warm_push"):
+            w = getattr(self, name)
+            if w is not None:
+                setattr(self, name, (w[0], w[1] * factor, w[2] * factor))
+
+    def _energy_checked_step(self, model, state, dt, obstacles, halvings):
+        """One step; with ``halvings`` > 0, a step that ends with more total energy than it started with (beyond
+        round-off: with ε ≤ 1, static obstacles and gravity in the energy, none may) is taken again as two steps of
+        Δt/2, each checked the same way with one halving less. The statistics of the halves are merged
+        (:func:`_merged_stats`)."""
+        if halvings <= 0:
+            return self._step(model, state, dt, obstacles, 0)
+        e0 = self._state_energy(model, state)
+        saved = (self._warm, self._warm_push, self._normals, self._dhat)
+        new = self._step(model, state, dt, obstacles, 0)
+        st = self.last_stats
+        scale = abs(st.kinetic_energy) + abs(st.spring_energy) + self._state_scale(model, state)
+        if not st.total_energy > e0 + ENERGY_ROUNDOFF * scale:
+            return new
+        self._warm, self._warm_push, self._normals, self._dhat = saved
+        self._scale_warm(0.5)
+        half = self._energy_checked_step(model, state, 0.5 * dt, obstacles, halvings - 1)
+        first = self.last_stats
+        self._last_energy = (half, first.total_energy)
+        new = self._energy_checked_step(model, half, 0.5 * dt, obstacles, halvings - 1)
+        self._scale_warm(2.0)
+        self.last_stats = _merged_stats(first, self.last_stats)
+        return new
+
+    @staticmethod
+    def _state_scale(model, state) -> float:
+        """J: ½ Σ m v² + ½ Σ ωᵀIω of ``state`` (the size against which :data:`ENERGY_ROUNDOFF` is taken)."""
+        return float(0.5 * (model.mass * (state.velocity ** 2).sum(1)).sum()
+                     + 0.5 * (model.inertia.max(1) * (state.angular_velocity ** 2).sum(1)).sum())
 
     def _relative_pair_speed(self, model, x_mid, R_mid, u_minus, dt, dhat):
         """(S,) m/s allowance speed of every segment for the fibre pairs' candidate band
@@ -1514,6 +1682,9 @@ class ChainSolver:
                       xb, Rb, wb)
             x_new[tb], R_new[tb] = xb, Rb
             w_pos[tb] = _spin_carried(np.ascontiguousarray(u_pos[tb, 3:]), R_mid[tb], Rb, model.inertia[tb])
+        # post-stabilisation acts on the state step() returns (after any halved steps): its rows and mid state
+        self._post_input = ((rows, R_mid) if o.post_stabilisation and rows is not None
+                            and o.contact_coupling == "coupled" and len(rows.body) else None)
         v_new = np.ascontiguousarray(u_end[:, :3])
         if u_pos is u_end:
             w_new = w_pos

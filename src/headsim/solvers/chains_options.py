@@ -263,6 +263,34 @@ class ChainOptions:
         into each other at a step's end 1.1 per step (largest 4) against 16.4 (54); reference scene at rest (8 steps
         after 3) overlaps > 10 µm next to the roots 420 against 469, reported max penetration 87 against 133 µm;
         step time within the machine's noise (0.94 / 1.04 / 1.16 / 1.21 against 0.75 / 0.87 / 1.65 / 1.71 s).
+    post_stabilisation : coupled mode, default True: post-stabilisation (Cline & Pai 2003) of the end state. The
+        step's contact rows are evaluated again at the positions it reached (fibre pairs: the closest points of
+        their axes there; obstacle rows: the field at the row's axis point), and where a row overlaps by more than
+        twice the slop s = :data:`~headsim.solvers.chains.POST_SLOP_FRACTION` × r (7 µm for 70 µm fibres), the
+        fibres of those rows are moved apart: min ½‖Δu‖²_M plus the joint springs' rows s.t. Δt J Δu ≥ −(g + s) for
+        every row of theirs within a radius of contact, the joints' anchors moving together (ending with an exact
+        joint solve), q ← q + Δt Δu; the velocities are left as the step made them. The velocity solve and the split
+        push-out hold and correct the rows' first-order gaps at their mid-step normals and points; where the
+        contact points slide or the segments turn fast, the true end-of-step overlap grows by up to tens of µm per
+        step and was left to accumulate. Measured (issue 10's thirty-second session; pair-steps = end-of-step fibre
+        pairs summed over the steps, exact capsule distances; with / without): plane 7 × 100 (0.3 s) overlaps
+        > 10 µm 61 / 790 pair-steps, > 50 µm 11 / 44, max joint gap 32.8 / 56.4 µm; terrain 7 × 100 (0.4 s)
+        104 / 1,321 and 21 / 54, deepest axis point into the terrain 46 / 268 µm; sphere-helical 7 × 100 (0.5 s)
+        0 / 37 above 10 µm; 19 × 30 0 / 203; plane 20 × 50 (6 mm segments) 478 / 11,090 and 57 / 994, max joint
+        gap 92 / 232 µm; reference scene at rest (t = 1.0 s, 8 steps after 3): overlaps > 10 µm next to the
+        roots 244 / 420 (largest 44 / 67 µm), elsewhere 1 / 4, 0.95 against 0.76 s per step. It does not stop
+        fibres passing through each other within one step (the sign of the crossing flips): plane 7 × 100 16 / 27
+        such events, plane 20 × 50 149 / 337. False: the former end state.
+    step_halvings : default 3: a step that ends with more total energy (kinetic + joint springs + gravity) than it
+        started with, beyond 1e-9 of the kinetic and spring energies (round-off), is taken again as two steps of
+        Δt/2, each checked the same way, down to Δt/2^step_halvings (the warm-start impulses scaled with the step);
+        ``StepStats.substeps`` counts the steps taken. With ε ≤ 1, static obstacles and gravity in the energy no
+        step may raise it ("energy never increases with ε = 0"), and none did in the plane, sphere-helical, head
+        and sphere-horizontal scenes measured (300–500 steps each); the terrain scene's frictionless 7 × 100 strand,
+        coiled on itself, gained energy in every step from t = 0.081 s on and ran away into a torsional spin
+        (10⁴ rad/s, joint gaps of centimetres by 0.125 s; also with friction, without push-out, with 3
+        harmonisation passes, and with 60 more sweeps): with the halving, 17 of its first 150 steps are halved and
+        no step raises the energy (at Δt = 0.5 ms the strand is stable too). 0: the former fixed step.
     close_joint_gaps : coupled mode with ``end_velocity_positions`` and ``split_recovery``, default True: the split
         push-out of the last pass also closes the joint gaps d^i (t_i) of the fibres with contact rows, its joint
         rows asking for −d^i/Δt where ‖d^i‖ exceeds ``push_out_slop`` × the radius (and the push-out runs for them
@@ -604,6 +632,8 @@ class ChainOptions:
     close_joint_gaps: bool = True
     separating_allowance: bool = True
     pass_through_normals: bool = True
+    post_stabilisation: bool = True
+    step_halvings: int = 3
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -626,6 +656,9 @@ class ChainOptions:
             raise ParameterError(f"contact_tolerance must be ≥ 0 m/s, got {self.contact_tolerance}")
         if not (isinstance(self.contact_domains, (int, np.integer)) and self.contact_domains >= 1):
             raise ParameterError(f"contact_domains must be an integer ≥ 1, got {self.contact_domains}")
+        if not (isinstance(self.step_halvings, (int, np.integer)) and not isinstance(self.step_halvings, bool)
+                and 0 <= self.step_halvings <= 10):
+            raise ParameterError(f"step_halvings must be an integer in 0 … 10, got {self.step_halvings!r}")
         for name in ("root_sweeps", "root_segments"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0):
@@ -648,7 +681,7 @@ class ChainOptions:
             raise ParameterError("kernel_precision must be 'auto', 'float64' or 'float32', "
                                  f"got {self.kernel_precision!r}")
         for name in ("push_out_warm_start", "predictor_extension", "close_joint_gaps", "separating_allowance",
-                     "pass_through_normals"):
+                     "pass_through_normals", "post_stabilisation"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ParameterError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not 0.0 <= self.joint_gap_fraction <= 1.0:
@@ -677,6 +710,7 @@ class StepStats:
     harmonisation_iterations: int = 0
     energy_bound: float = float("nan")  # J, end_velocity_positions: B of the step's velocity solve (nan: none)
     exact_solves: int = 0  # end_velocity_positions: velocity solves replaced by the exact final solve
+    substeps: int = 1  # steps of the solver this step took (step_halvings: 2 or more where its energy rose)
     contact_rows: int = 0  # coupled mode: rows of the last contact solve, from the start + added during it
     candidate_rows: int = 0  # coupled mode: candidate pairs not rows from the start
     promoted_rows: int = 0  # of those, added during the solves of the step (sum)

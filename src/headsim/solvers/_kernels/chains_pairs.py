@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from headsim.collide._kernels_fibre_traverse import segment_segment_closest
 from headsim.solvers._kernels.twins import serial_and_parallel
 
 
@@ -27,6 +28,19 @@ def _twist_normal_speed(u, s, n0, n1, n2, r0, r1, r2):
     """n·(v_s + ω_s × r) (m/s) of twist u[s] = (v, ω) at lever r (m) for the unit normal n."""
     return (n0 * (u[s, 0] + u[s, 4] * r2 - u[s, 5] * r1) + n1 * (u[s, 1] + u[s, 5] * r0 - u[s, 3] * r2)
             + n2 * (u[s, 2] + u[s, 3] * r1 - u[s, 4] * r0))
+
+
+@njit(cache=True, inline="always")
+def _touching_normal(d3, a, b):
+    """Normal of two segments whose axes touch (no direction between the closest points): the axes' cross
+    product, +y where they are also parallel."""
+    c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
+    c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
+    c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
+    cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    if cn > 1e-12:
+        return c0 / cn, c1 / cn, c2 / cn
+    return 0.0, 1.0, 0.0
 
 
 @njit(cache=True, inline="always")
@@ -65,14 +79,7 @@ def _pair_geometry(q, pairs, params, x, d3, half, radius, speed, band_fraction, 
     elif dist > 1e-12:
         n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
     else:
-        c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
-        c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
-        c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
-        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        if cn > 1e-12:
-            n0, n1, n2 = c0 / cn, c1 / cn, c2 / cn
-        else:
-            n0, n1, n2 = 0.0, 1.0, 0.0
+        n0, n1, n2 = _touching_normal(d3, a, b)
     la0 = ta * d3[a, 0] - ra * n0
     la1 = ta * d3[a, 1] - ra * n1
     la2 = ta * d3[a, 2] - ra * n2
@@ -601,3 +608,45 @@ def reserve_rows(sel, sp, spar, x, d3, half, radius, speed, band_fraction, margi
         _write_row(k, sp[i, 0], sp[i, 1], tight, gap, n0, n1, n2, la0, la1, la2, lb0, lb1, lb2,
                    a_out, b_out, n_out, la_out, lb_out, gap_out, tight_out)
         key_out[k] = sp[i, 0] * S + sp[i, 1]
+
+
+def _end_state_pairs_impl(body, partner, x, d3, half, radius, n_out, la_out, lb_out, gap_out):
+    """Fibre pairs (segments body[k], partner[k]) evaluated at a state x, d3 (post-stabilisation,
+    :meth:`headsim.solvers.chains.ChainSolver._post_stabilise`): the closest points c_a, c_b of the two axes
+    (Ericson's segment–segment test, :func:`headsim.collide._kernels_fibre_traverse.segment_segment_closest`), the
+    normal n = (c_a − c_b)/‖c_a − c_b‖ (the axes' cross product where they touch, +y where they are also
+    parallel, as :func:`fibre_pair_rows`), the gap ‖c_a − c_b‖ − r_a − r_b and the levers of the contact points
+    c_a − r_a n − x_a, c_b + r_b n − x_b (m)."""
+    for k in prange(body.shape[0]):
+        a = body[k]
+        b = partner[k]
+        ha = half[a]
+        hb = half[b]
+        s, t, _ = segment_segment_closest(
+            x[a, 0] - ha * d3[a, 0], x[a, 1] - ha * d3[a, 1], x[a, 2] - ha * d3[a, 2],
+            x[a, 0] + ha * d3[a, 0], x[a, 1] + ha * d3[a, 1], x[a, 2] + ha * d3[a, 2],
+            x[b, 0] - hb * d3[b, 0], x[b, 1] - hb * d3[b, 1], x[b, 2] - hb * d3[b, 2],
+            x[b, 0] + hb * d3[b, 0], x[b, 1] + hb * d3[b, 1], x[b, 2] + hb * d3[b, 2])
+        ta = (2.0 * s - 1.0) * ha
+        tb = (2.0 * t - 1.0) * hb
+        c0 = ta * d3[a, 0] - tb * d3[b, 0] + x[a, 0] - x[b, 0]
+        c1 = ta * d3[a, 1] - tb * d3[b, 1] + x[a, 1] - x[b, 1]
+        c2 = ta * d3[a, 2] - tb * d3[b, 2] + x[a, 2] - x[b, 2]
+        dist = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        if dist > 1e-12:
+            n0, n1, n2 = c0 / dist, c1 / dist, c2 / dist
+        else:
+            n0, n1, n2 = _touching_normal(d3, a, b)
+        gap_out[k] = dist - radius[a] - radius[b]
+        n_out[k, 0] = n0
+        n_out[k, 1] = n1
+        n_out[k, 2] = n2
+        la_out[k, 0] = ta * d3[a, 0] - radius[a] * n0
+        la_out[k, 1] = ta * d3[a, 1] - radius[a] * n1
+        la_out[k, 2] = ta * d3[a, 2] - radius[a] * n2
+        lb_out[k, 0] = tb * d3[b, 0] + radius[b] * n0
+        lb_out[k, 1] = tb * d3[b, 1] + radius[b] * n1
+        lb_out[k, 2] = tb * d3[b, 2] + radius[b] * n2
+
+
+end_state_pairs, end_state_pairs_parallel = serial_and_parallel(_end_state_pairs_impl)
