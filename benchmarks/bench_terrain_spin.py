@@ -1,22 +1,22 @@
-"""Diagnostic: the local spin-up of the terrain drape (Sobottka 2008 §8.6.3, 355 fibres × 100 segments, Δt = 1 ms),
-an open problem of issue 10. Steps the scene from a saved state and prints, per step, the fastest-spinning segment,
-the largest joint gap, the total energy and the solver steps taken (``ChainOptions.step_halvings``).
+"""Diagnostic: the local spin-up of the terrain drape (Sobottka 2008 §8.6.3, 355 fibres × 100 segments, Δt = 1 ms), an
+open problem of issue 10. Steps the scene from a saved state and prints, per step, the fastest-spinning segment, the
+largest joint gap, the total energy and the solver steps taken (``ChainOptions.step_halvings``).
 
 Usage: python benchmarks/bench_terrain_spin.py [--state FILE.npz] [--steps 30] [--friction aniso]
        [--set OPTION=VALUE ...]
 
 Measured (issue 10, thirty-second session, from the scene's start with the session's defaults, ≈ 6 s per step on a
-loaded machine): no step's total energy rose (the landing dissipates far more than the spin gains), yet the
-segments spun up locally, ω 443 → 596 → 765 → 929 → 1,162 → 1,533 rad/s over t = 0.070–0.075 s and 3,515 rad/s at
-0.076 s (the first halved step), 2,950 rad/s at 0.098 s, with joint gaps up to 0.40 mm. The 7 × 100 strand of
-the same scene ran away with rising energy (``tests/solvers/test_chains_stabilisation.py``), which the step halving
-stops; this one is not caught by a global energy check. The default state,
-``data/drape_terrain_355x100_aniso_t0.069.npz`` (t = 69 ms, written with ``drape_states.save_state`` after 69 steps
-from the start, 6.2 min), is the state just before that spin-up. A run from a saved state starts without the
-continuous run's warm starts and allowances, yet this script's first 12 steps from it (the defaults, same session) repeat it: ω 443, 596, 767, 933, 1,158, 1,536 and
-3,375 rad/s at t = 0.070–0.076 s, all on fibre 316's segments 52–55 (mid-fibre), joint gaps 11.6 → 148.8 µm, the
-total energy falling in every step; the step at 0.076 s took 3 solver steps, the next 5; then ω 700–1,200 rad/s
-to 0.081 s; 6–23 s per step (the landing).
+loaded machine): no step's total energy rose (the landing dissipates far more than the spin gains), yet the segments
+spun up locally, ω 443 → 596 → 765 → 929 → 1,162 → 1,533 rad/s over t = 0.070–0.075 s and 3,515 rad/s at 0.076 s
+(the first halved step), 2,950 rad/s at 0.098 s, with joint gaps up to 0.40 mm. The 7 × 100 strand of the same scene
+ran away with rising energy (``tests/solvers/test_chains_stabilisation.py``), which the step halving stops; this one
+is not caught by a global energy check. The default state, ``data/drape_terrain_355x100_aniso_t0.069.npz`` (t = 69
+ms, written with ``drape_states.save_state`` after 69 steps from the start, 6.2 min), is the state just before that
+spin-up. A run from a saved state starts without the continuous run's warm starts and allowances, yet this script's
+first 12 steps from it (the defaults, same session) repeat it: ω 443, 596, 767, 933, 1,158, 1,536 and 3,375 rad/s at
+t = 0.070–0.076 s, all on fibre 316's segments 52–55 (mid-fibre), joint gaps 11.6 → 148.8 µm, the total energy
+falling in every step; the step at 0.076 s took 3 solver steps, the next 5; then ω 700–1,200 rad/s to 0.081 s; 6–23
+s per step (the landing).
 """
 
 from __future__ import annotations
