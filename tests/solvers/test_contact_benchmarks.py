@@ -1,5 +1,5 @@
 """The chain-solver benchmarks run (issue 10): the replay of captured coupled contact solves, the exact final
-solve's comparison, the root-region experiment and the drape benchmark's saved states.
+solve's comparison, the root-region experiment, the drape benchmark's saved states and the terrain spin diagnostic.
 
 ``benchmarks/bench_contact_convergence.py`` (and ``bench_contact_domains.py``, which reads the captured calls
 through the same ``iterate_args``) rerun :func:`headsim.solvers._kernels.chains_coupled.coupled_iterate` from
@@ -114,3 +114,16 @@ def test_drape_benchmark_saves_a_state_and_starts_from_it(tmp_path):
                          timeout=600, cwd=ROOT)  # closer than a diameter: a usage error, nothing run
     assert out.returncode == 2 and "fibre_spacing must exceed the fibre diameter" in out.stderr, out.stderr[-2000:]
     assert "warm-up" not in out.stdout
+
+
+def test_terrain_spin_diagnostic_loads_its_state_and_steps():
+    """``benchmarks/bench_terrain_spin.py`` (the terrain drape's open spin-up, issue 10) loads its bundled state
+    (t = 69 ms of the 355 × 100 scene) and steps it: one step prints the time after it and a finite spin, joint gap
+    and energy. (The spin-up itself takes 6–7 steps of ≈ 10 s; see the script.)"""
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_terrain_spin.py"), "--steps", "1"],
+                         capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    m = re.search(r"^t 0\.070 s: max ω\s+([0-9.]+) rad/s .*max joint gap\s+([0-9.]+) µm, total energy ([0-9.e+-]+) J",
+                  out.stdout, re.M)
+    assert m, out.stdout
+    assert all(np.isfinite(float(g)) for g in m.groups())
