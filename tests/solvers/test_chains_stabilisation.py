@@ -65,7 +65,7 @@ def test_end_state_pairs_kernel_matches_brute_force_closest_points():
 
 def _crossed_pair(overlap):
     """Two crossed free 3 mm fibres (70 µm, one segment each) at rest, B across A with ``overlap`` (m) of their
-    capsules; no gravity. Returns model, state, options without gravity."""
+    capsules. Returns model, state (the tests step it without gravity)."""
     L = 3e-3
     y = 2 * R_FIBRE - overlap
     a = np.array([[-L / 2, 0.0, 0.0], [L / 2, 0.0, 0.0]])

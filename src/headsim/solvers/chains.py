@@ -268,6 +268,17 @@ def _spin_carried(w: np.ndarray, R: np.ndarray, R_mid: np.ndarray, inertia: np.n
     return _apply_scaled(R_mid, 1.0 / inertia, _apply_scaled(R, inertia, w))
 
 
+def _record_energies(st: StepStats, model: ChainModel, state: ChainState, gravity) -> StepStats:
+    """Write the kinetic, gravity and spring energies (J) and the largest joint gap (m) of ``state`` into ``st``;
+    returns it."""
+    kin, spring, gap = chain_energies(model, state)
+    st.kinetic_energy = float(kin.sum())
+    st.potential_energy = potential_energy(model, state, np.asarray(gravity, float))
+    st.spring_energy = float(spring.sum())
+    st.max_joint_gap = float(gap.max(initial=0.0))
+    return st
+
+
 def _merged_stats(first: StepStats, second: StepStats) -> StepStats:
     """The statistics of a step taken as two halves (``ChainOptions.step_halvings``): the second half's state
     values, the larger of the extremes, the sums of the counts and phase times."""
@@ -411,7 +422,7 @@ class ChainSolver:
         self._widen_seconds = 0.0  # candidate_band="relative": their time, s
         self._rel_grid = None  # candidate_band="relative": the LocalMotionBound of this step's detection state
         self._post_input = None  # post_stabilisation: (rows, mid-step rotations) of the last step
-        self._last_energy = None  # (the state step() returned last, its total energy, J)
+        self._last_energy = None  # (the state step() returned last, the statistics holding its energies)
 
     @staticmethod
     def _writable(a):
@@ -919,11 +930,10 @@ class ChainSolver:
         deep = gap < -2.0 * POST_SLOP_FRACTION * r
         if not deep.any():
             return x, R
-        hot = np.zeros(model.n_fibres + 1, bool)  # index −1 (an obstacle partner) stays False
+        hot = np.zeros(model.n_fibres + 1, bool)  # the last entry, read for an obstacle partner (−1), stays False
         hot[fib[body[deep]]] = True
         pf = np.where(partner >= 0, fib[np.maximum(partner, 0)], -1)
-        hot[pf[deep]] = True
-        hot[-1] = False
+        hot[pf[deep & (partner >= 0)]] = True
         near = np.nonzero((gap < r) & (hot[fib[body]] | hot[pf]))[0]
         body, partner, normal, lever, plever, gap, r = (np.ascontiguousarray(a[near]) for a in
                                                         (body, partner, normal, lever, plever, gap, r))
@@ -1267,31 +1277,32 @@ class ChainSolver:
             raise ParameterError(f"dt must be > 0 s, got {dt}")
         new = self._energy_checked_step(model, state, dt, obstacles, int(self.options.step_halvings))
         if self._post_input is not None:
-            t0 = time.perf_counter()
-            rows, R_mid = self._post_input
-            x, R = self._post_stabilise(model, rows, new.position, new.rotation, R_mid, dt, obstacles)
-            st = self.last_stats
-            if x is not new.position:
-                if not (np.isfinite(x).all() and np.isfinite(R).all()):
-                    raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "
-                                          f"(dt = {dt:g} s); reduce dt")
-                new = ChainState(x, R, new.velocity, new.angular_velocity, new.time)
-                kin, spring, gap = chain_energies(model, new)
-                st.kinetic_energy, st.spring_energy = float(kin.sum()), float(spring.sum())
-                st.potential_energy = potential_energy(model, new, np.asarray(self.options.gravity, float))
-                st.max_joint_gap = float(gap.max(initial=0.0))
-            st.seconds["contacts"] = st.seconds.get("contacts", 0.0) + time.perf_counter() - t0
-            st.seconds["total"] = st.seconds.get("total", 0.0) + time.perf_counter() - t0
-        self._last_energy = (new, self.last_stats.total_energy)
+            new = self._post_stabilised(model, new, dt, obstacles)
+        self._last_energy = (new, self.last_stats)
         return new
 
-    def _state_energy(self, model, state) -> float:
-        """Total energy (kinetic + springs + gravity, J) of ``state``; the last step's value when it is that step's
-        result."""
+    def _post_stabilised(self, model, new, dt, obstacles):
+        """The state ``new`` after :meth:`_post_stabilise` with the last step's rows; the step's statistics updated
+        (its energies and joint gap; the correction's time counted as contacts)."""
+        t0 = time.perf_counter()
+        rows, R_mid = self._post_input
+        x, R = self._post_stabilise(model, rows, new.position, new.rotation, R_mid, dt, obstacles)
+        st = self.last_stats
+        if x is not new.position:
+            if not (np.isfinite(x).all() and np.isfinite(R).all()):
+                raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "
+                                      f"(dt = {dt:g} s); reduce dt")
+            new = ChainState(x, R, new.velocity, new.angular_velocity, new.time)
+            _record_energies(st, model, new, self.options.gravity)
+        st.seconds["contacts"] = st.seconds.get("contacts", 0.0) + time.perf_counter() - t0
+        st.seconds["total"] = st.seconds.get("total", 0.0) + time.perf_counter() - t0
+        return new
+
+    def _state_energies(self, model, state) -> StepStats:
+        """Statistics holding the energies (J) of ``state``: the last step's when it is that step's result."""
         if self._last_energy is not None and self._last_energy[0] is state:
             return self._last_energy[1]
-        kin, spring, _ = chain_energies(model, state)
-        return float(kin.sum() + spring.sum()) + potential_energy(model, state, np.asarray(self.options.gravity, float))
+        return _record_energies(StepStats(), model, state, self.options.gravity)
 
     def _scale_warm(self, factor):
         """Scale the stored warm-start impulses (normal and friction, N s) by ``factor``: impulses of resting
@@ -1308,28 +1319,22 @@ class ChainSolver:
         (:func:`_merged_stats`)."""
         if halvings <= 0:
             return self._step(model, state, dt, obstacles, 0)
-        e0 = self._state_energy(model, state)
+        start = self._state_energies(model, state)
         saved = (self._warm, self._warm_push, self._normals, self._dhat)
         new = self._step(model, state, dt, obstacles, 0)
         st = self.last_stats
-        scale = abs(st.kinetic_energy) + abs(st.spring_energy) + self._state_scale(model, state)
-        if not st.total_energy > e0 + ENERGY_ROUNDOFF * scale:
+        scale = st.kinetic_energy + st.spring_energy + start.kinetic_energy
+        if not st.total_energy > start.total_energy + ENERGY_ROUNDOFF * scale:
             return new
         self._warm, self._warm_push, self._normals, self._dhat = saved
         self._scale_warm(0.5)
         half = self._energy_checked_step(model, state, 0.5 * dt, obstacles, halvings - 1)
         first = self.last_stats
-        self._last_energy = (half, first.total_energy)
+        self._last_energy = (half, first)
         new = self._energy_checked_step(model, half, 0.5 * dt, obstacles, halvings - 1)
         self._scale_warm(2.0)
         self.last_stats = _merged_stats(first, self.last_stats)
         return new
-
-    @staticmethod
-    def _state_scale(model, state) -> float:
-        """J: ½ Σ m v² + ½ Σ ωᵀIω of ``state`` (the size against which :data:`ENERGY_ROUNDOFF` is taken)."""
-        return float(0.5 * (model.mass * (state.velocity ** 2).sum(1)).sum()
-                     + 0.5 * (model.inertia.max(1) * (state.angular_velocity ** 2).sum(1)).sum())
 
     def _relative_pair_speed(self, model, x_mid, R_mid, u_minus, dt, dhat):
         """(S,) m/s allowance speed of every segment for the fibre pairs' candidate band
@@ -1699,11 +1704,7 @@ class ChainSolver:
                        qp_capped=self._qp_capped, qp_residual=self._qp_residual,
                        harmonisation_iterations=o.harmonisation_iterations,
                        energy_bound=float("nan") if self._bound is None else self._bound, exact_solves=self._continued)
-        kin, spring, gap = chain_energies(model, new)
-        st.kinetic_energy = float(kin.sum())
-        st.potential_energy = potential_energy(model, new, g)
-        st.spring_energy = float(spring.sum())
-        st.max_joint_gap = float(gap.max(initial=0.0))
+        _record_energies(st, model, new, g)
         active = (lam > 0) & (rows.primary | (o.contact_coupling == "per-body")) if len(lam) else np.zeros(0, bool)
         st.contacts = int(active.sum())
         st.candidate_band = band_mode if o.contact_coupling == "coupled" else ""
