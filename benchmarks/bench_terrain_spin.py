@@ -17,6 +17,12 @@ first 12 steps from it (the defaults, same session) repeat it: ω 443, 596, 767,
 t = 0.070–0.076 s, all on fibre 316's segments 52–55 (mid-fibre), joint gaps 11.6 → 148.8 µm, the total energy
 falling in every step; the step at 0.076 s took 3 solver steps, the next 5; then ω 700–1,200 rad/s to 0.081 s; 6–23
 s per step (the landing).
+
+With ``ChainOptions.max_rotation_per_step`` (0.5 rad, the default since the thirty-third session: a step after which
+a segment turns more than 0.5 rad per step is halved) the same 14 steps from the state: ω 443, 465, 410, 578, 536,
+494, 436, 467, 495, 465, 491, 519, 578, 621 rad/s (t = 0.070–0.083 s), joint gaps ≤ 23.9 µm, 1–2 solver steps per
+step, 5–22 s per step (machine shared with another run). ``--set max_rotation_per_step=None`` gives the spin-up
+above.
 """
 
 from __future__ import annotations

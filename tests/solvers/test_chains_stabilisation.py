@@ -3,7 +3,8 @@
 Checks: the end-state pair geometry kernel against brute-force closest points; a post-stabilised step leaves
 no overlap deeper than its slop and keeps the velocities; a step that would raise the total energy is taken as
 two halves, and on the terrain drape, whose frictionless strand gained energy step after step without it, the
-energy never rises (ε = 0, a conservation law).
+energy never rises (ε = 0, a conservation law); a step that turns a segment too far is halved, and a free
+spinning segment still turns exactly as the analytic solution.
 """
 
 import numpy as np
@@ -157,6 +158,46 @@ def test_terrain_drape_energy_never_rises_with_step_halving():
     assert rises[0][0] > 1e-8
     assert rises[3][0] <= 0.0
     assert rises[3][1] < 1000.0
+
+
+def _spinning_segment(omega):
+    """A free 3 mm one-segment fibre (70 µm) along x at the origin, at rest except its angular velocity ``omega``
+    (3,) rad/s. Returns model, state."""
+    model, state = chain_model_from_polylines(np.array([[-1.5e-3, 0.0, 0.0], [1.5e-3, 0.0, 0.0]]), [0, 2],
+                                              radius=R_FIBRE, anchored=False)
+    w = np.array([omega], float)
+    return model, ChainState(state.position, state.rotation, state.velocity, w, state.time)
+
+
+def test_a_segment_turning_faster_than_the_limit_is_stepped_in_halves():
+    """``max_rotation_per_step``: a free segment spinning at 1,200 rad/s about a transverse axis turns 1.2 rad in
+    a 1 ms step; with the 0.5 rad limit the step is halved (0.6 rad, still over) and halved again (0.3 rad):
+    four solver steps. A free rigid body with the chain model's spherical inertia turns uniformly, so the
+    orientation after the step is exp(Δt ω̃) R₀ (the analytic solution) however it is split, and the kinetic
+    energy is kept; without the limit the step is one."""
+    omega = np.array([0.0, 1200.0, 0.0])
+    model, state = _spinning_segment(omega)
+    exact = _rodrigues(1e-3 * omega) @ state.rotation[0]
+    for limit, steps in ((0.5, 4), (None, 1), (2.0, 1)):
+        solver = ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0), max_rotation_per_step=limit))
+        new = solver.step(model, state, 1e-3)
+        assert solver.last_stats.substeps == steps
+        assert new.time == pytest.approx(1e-3)
+        np.testing.assert_allclose(new.rotation[0], exact, atol=1e-12)
+        np.testing.assert_allclose(new.angular_velocity[0], omega, rtol=1e-12)
+
+
+def _rodrigues(phi):
+    """exp(φ̃) (3, 3) by Rodrigues' formula."""
+    a = float(np.linalg.norm(phi))
+    k = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]]) / a
+    return np.eye(3) + np.sin(a) * k + (1.0 - np.cos(a)) * (k @ k)
+
+
+def test_max_rotation_per_step_must_be_a_positive_angle_or_none():
+    for bad in (0.0, -0.5, float("nan"), float("inf"), "0.5", True):
+        with pytest.raises(ParameterError):
+            ChainOptions(max_rotation_per_step=bad)
 
 
 def test_step_halvings_must_be_a_small_integer():

@@ -56,9 +56,10 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    is taken from the gaps of that last mid-step state (first order from the detection state) and from the
    end-of-step obstacle distances.
 4. Second half step q^{i+1} = q^{i+½} + ½Δt u^{i+1}.
-5. Checks (ours): a step that raised the total energy is taken again as two half steps (``step_halvings``),
-   and the end state is post-stabilised, its deeper overlaps moved apart in position only
-   (``post_stabilisation``, Cline & Pai 2003).
+5. Checks (ours): a step that raised the total energy, or after which a segment turns by more than
+   ``max_rotation_per_step`` per step, is taken again as two half steps (``step_halvings``), and the end
+   state is post-stabilised, its deeper overlaps moved apart in position only (``post_stabilisation``,
+   Cline & Pai 2003).
 
 Gap handling (our additions, both stated): the normal bound is v_N − g/Δt for a separated pair
 with gap g > 0 inside the detection band (a speculative contact: it only acts if the pair would
@@ -1314,7 +1315,8 @@ class ChainSolver:
 
     def _energy_checked_step(self, model, state, dt, obstacles, halvings):
         """One step; with ``halvings`` > 0, a step that ends with more total energy than it started with (beyond
-        round-off: with ε ≤ 1, static obstacles and gravity in the energy, none may) is taken again as two steps of
+        round-off: with ε ≤ 1, static obstacles and gravity in the energy, none may) or with a segment turning by
+        more than ``max_rotation_per_step`` per step (:meth:`_over_rotated`) is taken again as two steps of
         Δt/2, each checked the same way with one halving less. The statistics of the halves are merged
         (:func:`_merged_stats`)."""
         if halvings <= 0:
@@ -1324,7 +1326,8 @@ class ChainSolver:
         new = self._step(model, state, dt, obstacles, 0)
         st = self.last_stats
         scale = st.kinetic_energy + st.spring_energy + start.kinetic_energy
-        if not st.total_energy > start.total_energy + ENERGY_ROUNDOFF * scale:
+        if not (st.total_energy > start.total_energy + ENERGY_ROUNDOFF * scale
+                or self._over_rotated(new, dt)):
             return new
         self._warm, self._warm_push, self._normals, self._dhat = saved
         self._scale_warm(0.5)
@@ -1335,6 +1338,15 @@ class ChainSolver:
         self._scale_warm(2.0)
         self.last_stats = _merged_stats(first, self.last_stats)
         return new
+
+    def _over_rotated(self, state, dt) -> bool:
+        """Whether a segment of ``state`` turns by more than ``ChainOptions.max_rotation_per_step`` (rad) in a
+        step of ``dt`` (s) at its end angular velocity."""
+        limit = self.options.max_rotation_per_step
+        if limit is None:
+            return False
+        w2 = np.einsum("ij,ij->i", state.angular_velocity, state.angular_velocity)
+        return bool(w2.max(initial=0.0) * dt * dt > limit * limit)
 
     def _relative_pair_speed(self, model, x_mid, R_mid, u_minus, dt, dhat):
         """(S,) m/s allowance speed of every segment for the fibre pairs' candidate band

@@ -290,7 +290,21 @@ class ChainOptions:
         coiled on itself, gained energy in every step from t = 0.081 s on and ran away into a torsional spin
         (10⁴ rad/s, joint gaps of centimetres by 0.125 s; also with friction, without push-out, with 3
         harmonisation passes, and with 60 more sweeps): with the halving, 17 of its first 150 steps are halved and
-        no step raises the energy (at Δt = 0.5 ms the strand is stable too). 0: the former fixed step.
+        no step raises the energy (at Δt = 0.5 ms the strand is stable too). 0: the former fixed step (and no
+        ``max_rotation_per_step`` either).
+    max_rotation_per_step : rad, default 0.5 (None: off): a step after which a segment turns faster than this per
+        step (|ω| Δt at its end angular velocity) is halved like one that raised the energy (``step_halvings``
+        levels). The springs' moments and the joint and contact levers are taken in one frame per step, which
+        holds only for small rotations per step; a local torsional spin-up inside a scene whose total energy
+        falls is invisible to the energy check. Measured (issue 10's thirty-third session): the full-size terrain
+        drape (355 × 100, ``benchmarks/bench_terrain_spin.py`` from t = 69 ms) spun fibre 316's segments up
+        from 443 to 3,375 rad/s in 7 steps with joint gaps of 149 µm; with 0.5 rad the segments stayed at
+        410–620 rad/s over 14 steps (1–2 solver steps per step), joint gaps ≤ 24 µm. 5 small scenes (one core
+        each; default / 0.5 / 0.3 rad): terrain 7 × 100 (0.4 s) extra solver steps 15 / 150 / 307, crossing
+        flips 23 / 15 / 6, overlaps > 10 µm 104 / 56 / 56 pair-steps, max joint gap 61 / 25 / 21 µm, 36 / 52 /
+        81 ms per step; plane 20 × 50 (0.3 s) 29 / 94 / 354 extra steps, flips 149 / 137 / 28, overlaps 478 /
+        480 / 275, 60 / 79 / 145 ms per step; plane 7 × 100 overlaps 61 / 48 / 95, flips 16 / 14 / 27; the
+        sphere scenes never reached the limit (≤ 144 rad/s), bitwise unchanged.
     close_joint_gaps : coupled mode with ``end_velocity_positions`` and ``split_recovery``, default True: the split
         push-out of the last pass also closes the joint gaps d^i (t_i) of the fibres with contact rows, its joint
         rows asking for −d^i/Δt where ‖d^i‖ exceeds ``push_out_slop`` × the radius (and the push-out runs for them
@@ -634,6 +648,7 @@ class ChainOptions:
     pass_through_normals: bool = True
     post_stabilisation: bool = True
     step_halvings: int = 3
+    max_rotation_per_step: float | None = 0.5
 
     def __post_init__(self):
         if not 0.0 <= self.restitution <= 1.0:
@@ -659,6 +674,12 @@ class ChainOptions:
         if not (isinstance(self.step_halvings, (int, np.integer)) and not isinstance(self.step_halvings, bool)
                 and 0 <= self.step_halvings <= 10):
             raise ParameterError(f"step_halvings must be an integer in 0 … 10, got {self.step_halvings!r}")
+        if self.max_rotation_per_step is not None and not (
+                isinstance(self.max_rotation_per_step, (int, float, np.integer, np.floating))
+                and not isinstance(self.max_rotation_per_step, bool)
+                and self.max_rotation_per_step > 0 and np.isfinite(self.max_rotation_per_step)):
+            raise ParameterError(f"max_rotation_per_step must be a positive number of radians or None, "
+                                 f"got {self.max_rotation_per_step!r}")
         for name in ("root_sweeps", "root_segments"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0):
@@ -710,7 +731,8 @@ class StepStats:
     harmonisation_iterations: int = 0
     energy_bound: float = float("nan")  # J, end_velocity_positions: B of the step's velocity solve (nan: none)
     exact_solves: int = 0  # end_velocity_positions: velocity solves replaced by the exact final solve
-    substeps: int = 1  # steps of the solver this step took (step_halvings: 2 or more where its energy rose)
+    substeps: int = 1  # steps of the solver this step took (step_halvings: 2 or more where its energy rose or a
+    # segment turned by more than max_rotation_per_step)
     contact_rows: int = 0  # coupled mode: rows of the last contact solve, from the start + added during it
     candidate_rows: int = 0  # coupled mode: candidate pairs not rows from the start
     promoted_rows: int = 0  # of those, added during the solves of the step (sum)
