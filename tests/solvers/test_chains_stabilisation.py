@@ -160,6 +160,34 @@ def test_terrain_drape_energy_never_rises_with_step_halving():
     assert rises[3][1] < 1000.0
 
 
+def test_a_pair_that_passed_through_in_a_step_is_turned_back_to_its_side(monkeypatch):
+    """``restore_crossings``: two crossed fibres, B lying on A (touching, no gravity). The solver's step is replaced
+    by one that moves B 100 µm down through A (its axis 30 µm below A's: through, 40 µm of overlap on the far
+    side). The end-state geometry alone reads that as B below A and the post-stabilisation completes the pass
+    (B ends below A); turned back, B ends above A again, overlapping by at most the slop, and the velocities are
+    the step's."""
+    model, state = _crossed_pair(0.0)
+    original = ChainSolver._step
+
+    def through(self, model, state, dt, obstacles, redo, force_absolute=False):
+        new = original(self, model, state, dt, obstacles, redo, force_absolute)
+        x = new.position.copy()
+        x[1, 1] -= 100e-6
+        return ChainState(x, new.rotation, new.velocity, new.angular_velocity, new.time)
+
+    monkeypatch.setattr(ChainSolver, "_step", through)
+    ends, turned = {}, {}
+    for restore in (False, True):
+        solver = ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0), restore_crossings=restore))
+        ends[restore] = solver.step(model, state, 1e-3)
+        turned[restore] = solver.last_stats.crossings_restored
+    assert turned == {False: 0, True: 1}
+    assert ends[False].position[1, 1] < ends[False].position[0, 1]  # the pass completed: B below A
+    assert ends[True].position[1, 1] > ends[True].position[0, 1]  # B back above A
+    assert _overlap(model, ends[True]) < 1.05 * POST_SLOP_FRACTION * R_FIBRE
+    np.testing.assert_array_equal(ends[True].velocity, ends[False].velocity)
+
+
 def _spinning_segment(omega):
     """A free 3 mm one-segment fibre (70 µm) along x at the origin, at rest except its angular velocity ``omega``
     (3,) rad/s. Returns model, state."""

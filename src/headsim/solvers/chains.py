@@ -351,6 +351,13 @@ ENERGY_ROUNDOFF = 1e-9
 # ChainOptions.post_stabilisation: the overlap (fraction of the radius) a correction leaves; it runs where a pair
 # overlaps by twice that
 POST_SLOP_FRACTION = 0.1
+# ChainOptions.restore_crossings: a pair's crossing sign counts where both closest points are farther than this
+# fraction of the segment's length from its ends and the axes cross at sin > CROSSING_MIN_SIN (3°)
+CROSSING_END_FRACTION = 0.05
+CROSSING_MIN_SIN = 0.05
+# ... and the post-stabilisation is repeated (at most this many rounds in all) after a round that turned pairs back:
+# a correction that moves a pair by its whole overlap may carry one of its neighbours through a third fibre
+POST_ROUNDS = 3
 
 
 def _obstacle_key(obstacle_index, segments, kind, n_segments):
@@ -423,6 +430,7 @@ class ChainSolver:
         self._widen_seconds = 0.0  # candidate_band="relative": their time, s
         self._rel_grid = None  # candidate_band="relative": the LocalMotionBound of this step's detection state
         self._post_input = None  # post_stabilisation: (rows, mid-step rotations) of the last step
+        self._crossings_restored = 0
         self._last_energy = None  # (the state step() returned last, the statistics holding its energies)
 
     @staticmethod
@@ -888,13 +896,52 @@ class ChainSolver:
         the closest points of the axes (:func:`~headsim.solvers._kernels.chains_pairs.end_state_pairs`)."""
         sel = np.nonzero(rows.primary & (rows.partner >= 0))[0]
         body, partner = np.ascontiguousarray(rows.body[sel]), np.ascontiguousarray(rows.partner[sel])
-        n = len(sel)
+        return (body, partner) + self._pair_geometry(model, body, partner, x, R)
+
+    def _pair_geometry(self, model, body, partner, x, R):
+        """(normal, lever, partner lever, gap) of the fibre pairs body, partner at the state x, R
+        (:func:`~headsim.solvers._kernels.chains_pairs.end_state_pairs`)."""
+        n = len(body)
         normal, lever, plever, gap = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
         if n:
             (KP.end_state_pairs_parallel if model.n_segments >= self.options.parallel_threshold
              else KP.end_state_pairs)(body, partner, np.ascontiguousarray(x), np.ascontiguousarray(R[:, :, 2]),
                                       model.half_length, model.radius, normal, lever, plever, gap)
-        return body, partner, normal, lever, plever, gap
+        return normal, lever, plever, gap
+
+    def _restore_crossings(self, model, start, body, partner, normal, lever, plever, gap, x_end, d3):
+        """Fibre pairs that passed through each other during the step (``ChainOptions.restore_crossings``): the
+        sign of (e_a × e_b)·(c_a − c_b) (axes e, closest axis points c;
+        :func:`~headsim.solvers._kernels.chains_pairs.crossing_sides`) changed between the start state and the end
+        state x_end, d3 (S, 3) while both closest points lie inside both segments (not within
+        :data:`CROSSING_END_FRACTION` of an end), the axes cross at sin > :data:`CROSSING_MIN_SIN` and their cross
+        product keeps its direction (within 60°). Such a pair reads at the end as separating on the far side; its
+        row (normal, levers, gap, modified in place) is turned back to the start side: normal ±(e_a × e_b)/‖·‖, gap
+        −(distance + r_a + r_b), levers to the same axis points. Returns the number of pairs turned."""
+        if not len(body):
+            return 0
+        sides = (KP.crossing_sides_parallel if model.n_segments >= self.options.parallel_threshold
+                 else KP.crossing_sides)
+        n = len(body)
+        cn0, sg0, cn1, sg1 = np.empty((n, 3)), np.empty(n), np.empty((n, 3)), np.empty(n)
+        sides(body, partner, np.ascontiguousarray(start.position), np.ascontiguousarray(start.rotation[:, :, 2]),
+              model.half_length, CROSSING_END_FRACTION, CROSSING_MIN_SIN, cn0, sg0)
+        sides(body, partner, np.ascontiguousarray(x_end), np.ascontiguousarray(d3), model.half_length,
+              CROSSING_END_FRACTION, CROSSING_MIN_SIN, cn1, sg1)
+        k = np.nonzero(sg0 * sg1 < 0)[0]
+        k = k[np.einsum("ij,ij->i", cn0[k], cn1[k]) > 0.5]
+        if len(k):
+            a, b = body[k], partner[k]
+            ra, rb = model.radius[a], model.radius[b]
+            ta = np.einsum("ij,ij->i", lever[k] + ra[:, None] * normal[k], d3[a])
+            tb = np.einsum("ij,ij->i", plever[k] - rb[:, None] * normal[k], d3[b])
+            sep = (gap[k] + ra + rb)[:, None] * normal[k]  # c_a − c_b at the end
+            nk = sg0[k, None] * cn1[k]
+            normal[k] = nk
+            gap[k] = np.einsum("ij,ij->i", nk, sep) - ra - rb
+            lever[k] = ta[:, None] * d3[a] - ra[:, None] * nk
+            plever[k] = tb[:, None] * d3[b] + rb[:, None] * nk
+        return len(k)
 
     def _end_obstacle_rows(self, model, rows, x, R, R_mid, obstacles):
         """The step's obstacle rows at the state x, R: the row's axis point (its contact point + r n at the mid
@@ -914,7 +961,35 @@ class ChainSolver:
         normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
         return sb, np.full(len(sb), -1, np.int64), normal, c - r[:, None] * normal - x[sb], np.zeros((len(sb), 3)), gap
 
-    def _post_stabilise(self, model, rows, x, R, R_mid, dt, obstacles):
+    @staticmethod
+    def _hot_obstacle_rows(model, x, R, seg, obstacles, reach):
+        """Obstacle rows (body, −1, normal, lever, 0, gap) of the segments ``seg`` at the state x, R: per segment
+        and obstacle the deepest of its axis end points and midpoint, where its gap φ − level − r is below
+        ``reach`` (m)."""
+        none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
+                np.zeros(0))
+        out = []
+        if not len(seg):
+            return none
+        d3 = R[seg, :, 2]
+        h = model.half_length[seg, None]
+        pts = np.stack([x[seg] - h * d3, x[seg], x[seg] + h * d3], axis=1)  # (n, 3 samples, 3)
+        r = model.radius[seg]
+        for ob in obstacles:
+            phi = (ob.field.distance(pts.reshape(-1, 3)) - ob.level).reshape(len(seg), 3)
+            j = np.argmin(phi, axis=1)
+            g = phi[np.arange(len(seg)), j] - r
+            m = np.nonzero(g < reach)[0]
+            if not len(m):
+                continue
+            p = pts[m, j[m]]
+            nrm = ob.field.normal(p)
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
+            out.append((seg[m], np.full(len(m), -1, np.int64), nrm, p - r[m, None] * nrm - x[seg[m]],
+                        np.zeros((len(m), 3)), g[m]))
+        return tuple(np.concatenate(z) for z in zip(*out)) if out else none
+
+    def _post_stabilise(self, model, rows, x, R, R_mid, dt, obstacles, start=None):
         """Post-stabilisation (Cline & Pai 2003; ``ChainOptions.post_stabilisation``). The step's contact rows are
         evaluated again at its end state x, R (fibre pairs: the closest points of their axes now; obstacle rows: the
         field at the row's axis point), and where one overlaps by more than 2 s (s = :data:`POST_SLOP_FRACTION` × its
@@ -924,6 +999,9 @@ class ChainSolver:
         o = self.options
         fib = model.segment_fibre
         parts = [self._end_fibre_rows(model, rows, x, R)]
+        self._crossings_restored = 0
+        if o.restore_crossings and start is not None:
+            self._crossings_restored = self._restore_crossings(model, start, *parts[0], x, R[:, :, 2])
         if obstacles and (rows.partner < 0).any():
             parts.append(self._end_obstacle_rows(model, rows, x, R, R_mid, obstacles))
         body, partner, normal, lever, plever, gap = (np.concatenate(z) for z in zip(*parts))
@@ -938,6 +1016,14 @@ class ChainSolver:
         near = np.nonzero((gap < r) & (hot[fib[body]] | hot[pf]))[0]
         body, partner, normal, lever, plever, gap, r = (np.ascontiguousarray(a[near]) for a in
                                                         (body, partner, normal, lever, plever, gap, r))
+        if obstacles and self._crossings_restored:
+            # a pair turned back moves by up to its whole overlap: the obstacles near its fibres hold too, also
+            # where the step had no row (its segments were not near them at the mid state)
+            reach = float(max(0.0, -gap.min(initial=0.0))) + float(model.radius.max())
+            extra = self._hot_obstacle_rows(model, x, R, np.nonzero(hot[fib])[0], obstacles, reach)
+            body, partner, normal, lever, plever, gap = (np.ascontiguousarray(np.concatenate([a, b])) for a, b in
+                                                         zip((body, partner, normal, lever, plever, gap), extra))
+            r = model.radius[body]
         k = len(body)
         sub = _Rows(body, partner, normal, lever, plever, gap, partner < 0, np.ones(k, bool), np.zeros(k, np.int64))
         S = model.n_segments
@@ -1278,17 +1364,27 @@ class ChainSolver:
             raise ParameterError(f"dt must be > 0 s, got {dt}")
         new = self._energy_checked_step(model, state, dt, obstacles, int(self.options.step_halvings))
         if self._post_input is not None:
-            new = self._post_stabilised(model, new, dt, obstacles)
+            new = self._post_stabilised(model, state, new, dt, obstacles)
         self._last_energy = (new, self.last_stats)
         return new
 
-    def _post_stabilised(self, model, new, dt, obstacles):
-        """The state ``new`` after :meth:`_post_stabilise` with the last step's rows; the step's statistics updated
-        (its energies and joint gap; the correction's time counted as contacts)."""
+    def _post_stabilised(self, model, start, new, dt, obstacles):
+        """The state ``new`` after :meth:`_post_stabilise` with the last step's rows (``start``: the step's start
+        state); the step's statistics updated (its energies and joint gap; the correction's time counted as
+        contacts)."""
         t0 = time.perf_counter()
         rows, R_mid = self._post_input
-        x, R = self._post_stabilise(model, rows, new.position, new.rotation, R_mid, dt, obstacles)
+        x, R = new.position, new.rotation
         st = self.last_stats
+        st.crossings_restored = 0
+        for _ in range(POST_ROUNDS):
+            x_c, R_c = self._post_stabilise(model, rows, x, R, R_mid, dt, obstacles, start)
+            st.crossings_restored += self._crossings_restored
+            if x_c is x:
+                break
+            x, R = x_c, R_c
+            if not self._crossings_restored:  # a round that turned no pair back moved nothing far
+                break
         if x is not new.position:
             if not (np.isfinite(x).all() and np.isfinite(R).all()):
                 raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "

@@ -281,6 +281,23 @@ class ChainOptions:
         roots 244 / 420 (largest 44 / 67 µm), elsewhere 1 / 4, 0.95 against 0.76 s per step. It does not stop
         fibres passing through each other within one step (the sign of the crossing flips): plane 7 × 100 16 / 27
         such events, plane 20 × 50 149 / 337. False: the former end state.
+    restore_crossings : with ``post_stabilisation``, default True: a fibre pair of the step's rows that passed
+        through its partner during the step (the sign of (e_a × e_b)·(c_a − c_b) changed between the step's start
+        and end, closest points inside both segments, axes not parallel) is turned back: the post-stabilisation
+        sees it on its start side with the overlap −(distance + r_a + r_b), not as a pair on the far side, and
+        moves it back (``ChainSolver._restore_crossings``); after such a round the post-stabilisation runs again
+        (up to :data:`~headsim.solvers.chains.POST_ROUNDS` rounds), as a pair moved back by its whole overlap may
+        carry a neighbour through a third fibre, and the obstacles near the fibres moved are rows of it too.
+        ``StepStats.crossings_restored`` counts the pairs. Measured (issue 10's thirty-third session, with
+        ``max_rotation_per_step`` = 0.5; with / without; crossing flips = pairs whose crossing sign at the end of
+        a step differs from the step before, closest points inside): plane 7 × 100 (0.3 s) flips 8 / 14,
+        overlaps > 10 µm 39 / 48 pair-steps; terrain 7 × 100 (0.4 s) flips 2 / 15, overlaps > 10 µm 122 / 56,
+        > 50 µm 11 / 6; plane 20 × 50 (0.3 s) flips 61 / 137, overlaps > 10 µm 400 / 480, > 50 µm 43 / 53,
+        deepest axis point into the plane 84 / 58 µm (from the steps themselves, not the corrections); the sphere
+        scenes turned no pair (bitwise unchanged); 89 against 87 ms per step on plane 20 × 50; reference scene at
+        rest: no pair turned, 7 ms per step for the two crossing evaluations of its 173 k rows and candidates.
+        The flips left: pairs that were no rows of the step's last solve, and pairs whose closest point lies
+        near a segment end (a fibre passing round a joint).
     step_halvings : default 3: a step that ends with more total energy (kinetic + joint springs + gravity) than it
         started with, beyond 1e-9 of the kinetic and spring energies (round-off), is taken again as two steps of
         Δt/2, each checked the same way, down to Δt/2^step_halvings (the warm-start impulses scaled with the step);
@@ -647,6 +664,7 @@ class ChainOptions:
     separating_allowance: bool = True
     pass_through_normals: bool = True
     post_stabilisation: bool = True
+    restore_crossings: bool = True
     step_halvings: int = 3
     max_rotation_per_step: float | None = 0.5
 
@@ -702,7 +720,7 @@ class ChainOptions:
             raise ParameterError("kernel_precision must be 'auto', 'float64' or 'float32', "
                                  f"got {self.kernel_precision!r}")
         for name in ("push_out_warm_start", "predictor_extension", "close_joint_gaps", "separating_allowance",
-                     "pass_through_normals", "post_stabilisation"):
+                     "pass_through_normals", "post_stabilisation", "restore_crossings"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ParameterError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not 0.0 <= self.joint_gap_fraction <= 1.0:
@@ -742,6 +760,7 @@ class StepStats:
     reserve_promoted: int = 0  # candidate_reserve: of those, the ones a solve's twists closed (then solved again)
     reserve_resolves: int = 0  # candidate_reserve: passes solved again for them
     band_extensions: int = 0  # candidate_band="relative": detections with a band widened to the twist changes
+    crossings_restored: int = 0  # restore_crossings: fibre pairs found passed through each other and turned back
     reversed_normals: int = 0  # persistent_normals: fibre rows of the last pass held on their previous side
     seconds: dict = field(default_factory=dict)
 

@@ -650,3 +650,45 @@ def _end_state_pairs_impl(body, partner, x, d3, half, radius, n_out, la_out, lb_
 
 
 end_state_pairs, end_state_pairs_parallel = serial_and_parallel(_end_state_pairs_impl)
+
+
+def _crossing_sides_impl(body, partner, x, d3, half, end_fraction, min_sin, cn_out, side_out):
+    """The crossing side of fibre pairs (segments body[k], partner[k]) at a state x, d3 (``ChainOptions.
+    restore_crossings``): cn_out[k] = e_a × e_b / ‖e_a × e_b‖ and side_out[k] = sign((e_a × e_b)·(c_a − c_b)) for the
+    closest axis points c_a, c_b (Ericson's test, as :func:`_end_state_pairs_impl`); side 0 where a closest point is
+    within ``end_fraction`` of its segment's length from an end or the axes cross at sin ≤ ``min_sin``."""
+    for k in prange(body.shape[0]):
+        a = body[k]
+        b = partner[k]
+        ha = half[a]
+        hb = half[b]
+        s, t, _ = segment_segment_closest(
+            x[a, 0] - ha * d3[a, 0], x[a, 1] - ha * d3[a, 1], x[a, 2] - ha * d3[a, 2],
+            x[a, 0] + ha * d3[a, 0], x[a, 1] + ha * d3[a, 1], x[a, 2] + ha * d3[a, 2],
+            x[b, 0] - hb * d3[b, 0], x[b, 1] - hb * d3[b, 1], x[b, 2] - hb * d3[b, 2],
+            x[b, 0] + hb * d3[b, 0], x[b, 1] + hb * d3[b, 1], x[b, 2] + hb * d3[b, 2])
+        c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
+        c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
+        c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
+        sn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        side_out[k] = 0.0
+        if sn > min_sin:
+            cn_out[k, 0] = c0 / sn
+            cn_out[k, 1] = c1 / sn
+            cn_out[k, 2] = c2 / sn
+        else:
+            cn_out[k, 0] = 0.0
+            cn_out[k, 1] = 0.0
+            cn_out[k, 2] = 0.0
+            continue
+        if s <= end_fraction or s >= 1.0 - end_fraction or t <= end_fraction or t >= 1.0 - end_fraction:
+            continue
+        ta = (2.0 * s - 1.0) * ha
+        tb = (2.0 * t - 1.0) * hb
+        dot = 0.0
+        for i in range(3):
+            dot += (ta * d3[a, i] - tb * d3[b, i] + x[a, i] - x[b, i]) * cn_out[k, i]
+        side_out[k] = 1.0 if dot > 0.0 else -1.0 if dot < 0.0 else 0.0
+
+
+crossing_sides, crossing_sides_parallel = serial_and_parallel(_crossing_sides_impl)
