@@ -88,6 +88,12 @@ def test_cli_drape_writes_outputs_and_rejects_bad_input(tmp_path, capsys):
     data = np.load(out / "trajectory.npz")
     assert data["polylines"].shape[1:] == (3, 31, 3)
     assert np.isfinite(data["polylines"]).all()
+    # per step: the solver steps it took (≥ 1) and the pairs turned back (≥ 0), one entry per 1 ms step
+    assert data["substeps"].shape == data["crossings_restored"].shape == data["step_time"].shape == (10,)
+    assert data["end_overlap"].shape == (10,)
+    assert (data["substeps"] >= 1).all() and (data["crossings_restored"] >= 0).all()
+    assert "steps taken in halves" in r.output and "fibre pairs turned back" in r.output
+    assert "overlap of a contact row at a step's end" in r.output
     with pytest.raises(SystemExit) as e:
         main(["hair", "drape", "--scene", "moon", "--out", str(tmp_path / "bad")])
     assert e.value.code == 2

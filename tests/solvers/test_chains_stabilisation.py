@@ -86,11 +86,15 @@ def test_post_stabilisation_removes_an_overlap_down_to_its_slop_and_keeps_the_ve
     most the slop (0.1 r = 3.5 µm, up to the linearisation of one correction) and the velocities are those of the
     step without it (positions only)."""
     model, state = _crossed_pair(40e-6)
-    ends = {}
+    ends, reported = {}, {}
     for post in (False, True):
         solver = ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0), post_stabilisation=post))
         ends[post] = solver.step(model, state, 1e-3)
+        reported[post] = solver.last_stats.end_overlap
     assert _overlap(model, ends[False]) > 20e-6
+    # StepStats.end_overlap: the overlap of the returned state (nan where nothing evaluated it)
+    assert np.isnan(reported[False])
+    assert reported[True] == pytest.approx(_overlap(model, ends[True]), abs=1e-8)
     assert _overlap(model, ends[True]) < 1.05 * POST_SLOP_FRACTION * R_FIBRE
     assert _overlap(model, ends[True]) > 0.9 * POST_SLOP_FRACTION * R_FIBRE  # to the slop, not beyond
     np.testing.assert_array_equal(ends[True].velocity, ends[False].velocity)

@@ -178,6 +178,13 @@ class DrapeResult:
     qp_capped: np.ndarray  # (steps,) contact solves of the step that ended at the sweep cap (no tolerance met)
     seconds: dict = field(default_factory=dict)  # summed per-phase wall time, s
     step_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (steps,) wall time of each step, s
+    # (steps,) solver steps each step took (ChainOptions.step_halvings / max_rotation_per_step: 2 or more where it
+    # was halved)
+    substeps: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    # (steps,) fibre pairs turned back after passing through each other in the step (ChainOptions.restore_crossings)
+    crossings_restored: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    # (steps,) m, the largest overlap of a step's contact rows at its end, exact (StepStats.end_overlap; nan: none)
+    end_overlap: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def _hex_lattice(n: int, spacing: float) -> np.ndarray:
@@ -553,7 +560,7 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
     times, frames = [0.0], [polylines_from_state(scene.model, state)]
     cols = {k: [] for k in ("step_time", "kinetic", "total_energy", "contacts", "fibre_contacts", "obstacle_contacts",
                             "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps", "qp_capped",
-                            "step_seconds")}
+                            "step_seconds", "substeps", "crossings_restored", "end_overlap")}
     secs: dict[str, float] = {}
     for i in range(steps):
         state = solver.step(scene.model, state, scene.dt, scene.obstacles)
@@ -572,7 +579,7 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
         cols["total_energy"].append(st.total_energy)
         cols["step_seconds"].append(st.seconds.get("total", 0.0))
         for k in ("contacts", "fibre_contacts", "obstacle_contacts", "max_joint_gap", "max_penetration",
-                  "newton_iterations", "qp_sweeps", "qp_capped"):
+                  "newton_iterations", "qp_sweeps", "qp_capped", "substeps", "crossings_restored", "end_overlap"):
             cols[k].append(getattr(st, k))
         for k, v in st.seconds.items():
             secs[k] = secs.get(k, 0.0) + v
@@ -602,7 +609,8 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
                         fibre_contacts=result.fibre_contacts, obstacle_contacts=result.obstacle_contacts,
                         max_joint_gap=result.max_joint_gap, max_penetration=result.max_penetration,
                         newton_iterations=result.newton_iterations, qp_sweeps=result.qp_sweeps,
-                        qp_capped=result.qp_capped, step_seconds=result.step_seconds,
+                        qp_capped=result.qp_capped, step_seconds=result.step_seconds, substeps=result.substeps,
+                        crossings_restored=result.crossings_restored, end_overlap=result.end_overlap,
                         radius=scene.model.radius[0], dt=scene.dt)
     files.append(npz)
     (folder / "vtk").mkdir()

@@ -24,7 +24,7 @@ def drape_numbers(scene: DrapeScene, result: DrapeResult) -> list[tuple[str, str
     ext, vol = bounding_box(result.polylines[-1])
     steps = len(result.step_time)
     median = float(np.median(result.step_seconds)) if len(result.step_seconds) else float("nan")
-    return [
+    rows = [
         ("scene", scene.description),
         ("time steps", f"{steps} × {scene.dt * 1e3:g} ms = {steps * scene.dt:.3f} s"),
         ("wall time per step (median)", f"{median:.3g} s"),
@@ -33,12 +33,23 @@ def drape_numbers(scene: DrapeScene, result: DrapeResult) -> list[tuple[str, str
         ("kinetic energy: peak → final", f"{result.kinetic.max():.3e} → {result.kinetic[-1]:.3e} J"),
         ("active contacts at the end (fibre–fibre / fibre–obstacle)",
          f"{int(result.fibre_contacts[-1])} / {int(result.obstacle_contacts[-1])}"),
-        ("largest penetration (any step)", f"{result.max_penetration.max() * 1e6:.1f} µm "
-                                           f"(fibre radius {scene.model.radius[0] * 1e6:.0f} µm)"),
+        ("largest penetration (any step; first order at the mid-step state, and the obstacles at the end)",
+         f"{result.max_penetration.max() * 1e6:.1f} µm (fibre radius {scene.model.radius[0] * 1e6:.0f} µm)"),
         ("largest joint gap (any step)", f"{result.max_joint_gap.max() * 1e6:.2f} µm"),
         ("contact solves that ended at their sweep cap", f"{int(result.qp_capped.sum())} "
                                                          f"of the run's (≤ {int(result.qp_capped.max())} per step)"),
     ]
+    if len(result.substeps):
+        rows.append(("steps taken in halves (energy rose or a segment turned > max_rotation_per_step)",
+                     f"{int((result.substeps > 1).sum())} of {steps} (≤ {int(result.substeps.max())} solver steps in "
+                     "one)"))
+    if len(result.end_overlap) and np.isfinite(result.end_overlap).any():
+        rows.append(("largest overlap of a contact at the end of a step (exact, after the post-stabilisation)",
+                     f"{np.nanmax(result.end_overlap) * 1e6:.1f} µm"))
+    if len(result.crossings_restored):
+        rows.append(("fibre pairs turned back after passing through each other",
+                     f"{int(result.crossings_restored.sum())} in the run"))
+    return rows
 
 
 def _fibre_lines(polylines: np.ndarray, stride: int) -> np.ndarray:

@@ -431,6 +431,7 @@ class ChainSolver:
         self._rel_grid = None  # candidate_band="relative": the LocalMotionBound of this step's detection state
         self._post_input = None  # post_stabilisation: (rows, mid-step rotations) of the last step
         self._crossings_restored = 0
+        self._end_overlap = float("nan")
         self._last_energy = None  # (the state step() returned last, the statistics holding its energies)
 
     @staticmethod
@@ -961,6 +962,21 @@ class ChainSolver:
         normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
         return sb, np.full(len(sb), -1, np.int64), normal, c - r[:, None] * normal - x[sb], np.zeros((len(sb), 3)), gap
 
+    def _end_rows(self, model, rows, x, R, R_mid, obstacles, start):
+        """The step's rows evaluated at the state x, R (fibre pairs: :meth:`_end_fibre_rows`, turned back where
+        they passed through each other since ``start`` (``restore_crossings``; their number in
+        ``self._crossings_restored``); obstacle rows: :meth:`_end_obstacle_rows`): (body, partner, normal, lever,
+        partner lever, gap); sets ``self._end_overlap`` (m), the largest overlap −min(gap, 0) among them."""
+        parts = [self._end_fibre_rows(model, rows, x, R)]
+        self._crossings_restored = 0
+        if self.options.restore_crossings and start is not None:
+            self._crossings_restored = self._restore_crossings(model, start, *parts[0], x, R[:, :, 2])
+        if obstacles and (rows.partner < 0).any():
+            parts.append(self._end_obstacle_rows(model, rows, x, R, R_mid, obstacles))
+        out = tuple(np.concatenate(z) for z in zip(*parts))
+        self._end_overlap = float(max(0.0, -out[5].min(initial=0.0)))
+        return out
+
     @staticmethod
     def _hot_obstacle_rows(model, x, R, seg, obstacles, reach):
         """Obstacle rows (body, −1, normal, lever, 0, gap) of the segments ``seg`` at the state x, R: per segment
@@ -998,13 +1014,7 @@ class ChainSolver:
         moving together; q ← q + Δt Δu (exponential map), velocities unchanged. Returns the corrected (x, R)."""
         o = self.options
         fib = model.segment_fibre
-        parts = [self._end_fibre_rows(model, rows, x, R)]
-        self._crossings_restored = 0
-        if o.restore_crossings and start is not None:
-            self._crossings_restored = self._restore_crossings(model, start, *parts[0], x, R[:, :, 2])
-        if obstacles and (rows.partner < 0).any():
-            parts.append(self._end_obstacle_rows(model, rows, x, R, R_mid, obstacles))
-        body, partner, normal, lever, plever, gap = (np.concatenate(z) for z in zip(*parts))
+        body, partner, normal, lever, plever, gap = self._end_rows(model, rows, x, R, R_mid, obstacles, start)
         r = model.radius[body]
         deep = gap < -2.0 * POST_SLOP_FRACTION * r
         if not deep.any():
@@ -1377,14 +1387,19 @@ class ChainSolver:
         x, R = new.position, new.rotation
         st = self.last_stats
         st.crossings_restored = 0
+        evaluated = False  # whether the returned state's rows were evaluated (for StepStats.end_overlap)
         for _ in range(POST_ROUNDS):
             x_c, R_c = self._post_stabilise(model, rows, x, R, R_mid, dt, obstacles, start)
             st.crossings_restored += self._crossings_restored
             if x_c is x:
+                evaluated = True
                 break
             x, R = x_c, R_c
             if not self._crossings_restored:  # a round that turned no pair back moved nothing far
                 break
+        if not evaluated:  # the overlap the last correction left
+            self._end_rows(model, rows, x, R, R_mid, obstacles, start)
+        st.end_overlap = self._end_overlap
         if x is not new.position:
             if not (np.isfinite(x).all() and np.isfinite(R).all()):
                 raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "

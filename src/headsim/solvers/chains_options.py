@@ -760,6 +760,9 @@ class StepStats:
     reserve_promoted: int = 0  # candidate_reserve: of those, the ones a solve's twists closed (then solved again)
     reserve_resolves: int = 0  # candidate_reserve: passes solved again for them
     band_extensions: int = 0  # candidate_band="relative": detections with a band widened to the twist changes
+    end_overlap: float = float("nan")  # m, post_stabilisation: the largest overlap of the step's rows at the state
+    # the step returns (fibre pairs: exact closest points of the axes, pairs that passed through each other counted
+    # through (restore_crossings); obstacle rows: the field at the row's axis point); nan without it
     crossings_restored: int = 0  # restore_crossings: fibre pairs found passed through each other and turned back
     reversed_normals: int = 0  # persistent_normals: fibre rows of the last pass held on their previous side
     seconds: dict = field(default_factory=dict)
