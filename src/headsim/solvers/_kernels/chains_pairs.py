@@ -610,6 +610,20 @@ def reserve_rows(sel, sp, spar, x, d3, half, radius, speed, band_fraction, margi
         key_out[k] = sp[i, 0] * S + sp[i, 1]
 
 
+@njit(cache=True, inline="always")
+def _axes_closest(x, d3, half, a, b):
+    """Parameters (s, t) ∈ [0, 1]² of the closest points of the axes of segments a and b (centres x, unit axes d3,
+    half lengths half; Ericson's test, :func:`segment_segment_closest`)."""
+    ha = half[a]
+    hb = half[b]
+    s, t, _ = segment_segment_closest(
+        x[a, 0] - ha * d3[a, 0], x[a, 1] - ha * d3[a, 1], x[a, 2] - ha * d3[a, 2],
+        x[a, 0] + ha * d3[a, 0], x[a, 1] + ha * d3[a, 1], x[a, 2] + ha * d3[a, 2],
+        x[b, 0] - hb * d3[b, 0], x[b, 1] - hb * d3[b, 1], x[b, 2] - hb * d3[b, 2],
+        x[b, 0] + hb * d3[b, 0], x[b, 1] + hb * d3[b, 1], x[b, 2] + hb * d3[b, 2])
+    return s, t
+
+
 def _end_state_pairs_impl(body, partner, x, d3, half, radius, n_out, la_out, lb_out, gap_out):
     """Fibre pairs (segments body[k], partner[k]) evaluated at a state x, d3 (post-stabilisation,
     :meth:`headsim.solvers.chains.ChainSolver._post_stabilise`): the closest points c_a, c_b of the two axes
@@ -620,15 +634,9 @@ def _end_state_pairs_impl(body, partner, x, d3, half, radius, n_out, la_out, lb_
     for k in prange(body.shape[0]):
         a = body[k]
         b = partner[k]
-        ha = half[a]
-        hb = half[b]
-        s, t, _ = segment_segment_closest(
-            x[a, 0] - ha * d3[a, 0], x[a, 1] - ha * d3[a, 1], x[a, 2] - ha * d3[a, 2],
-            x[a, 0] + ha * d3[a, 0], x[a, 1] + ha * d3[a, 1], x[a, 2] + ha * d3[a, 2],
-            x[b, 0] - hb * d3[b, 0], x[b, 1] - hb * d3[b, 1], x[b, 2] - hb * d3[b, 2],
-            x[b, 0] + hb * d3[b, 0], x[b, 1] + hb * d3[b, 1], x[b, 2] + hb * d3[b, 2])
-        ta = (2.0 * s - 1.0) * ha
-        tb = (2.0 * t - 1.0) * hb
+        s, t = _axes_closest(x, d3, half, a, b)
+        ta = (2.0 * s - 1.0) * half[a]
+        tb = (2.0 * t - 1.0) * half[b]
         c0 = ta * d3[a, 0] - tb * d3[b, 0] + x[a, 0] - x[b, 0]
         c1 = ta * d3[a, 1] - tb * d3[b, 1] + x[a, 1] - x[b, 1]
         c2 = ta * d3[a, 2] - tb * d3[b, 2] + x[a, 2] - x[b, 2]
@@ -660,13 +668,7 @@ def _crossing_sides_impl(body, partner, x, d3, half, end_fraction, min_sin, cn_o
     for k in prange(body.shape[0]):
         a = body[k]
         b = partner[k]
-        ha = half[a]
-        hb = half[b]
-        s, t, _ = segment_segment_closest(
-            x[a, 0] - ha * d3[a, 0], x[a, 1] - ha * d3[a, 1], x[a, 2] - ha * d3[a, 2],
-            x[a, 0] + ha * d3[a, 0], x[a, 1] + ha * d3[a, 1], x[a, 2] + ha * d3[a, 2],
-            x[b, 0] - hb * d3[b, 0], x[b, 1] - hb * d3[b, 1], x[b, 2] - hb * d3[b, 2],
-            x[b, 0] + hb * d3[b, 0], x[b, 1] + hb * d3[b, 1], x[b, 2] + hb * d3[b, 2])
+        s, t = _axes_closest(x, d3, half, a, b)
         c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
         c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
         c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
@@ -683,8 +685,8 @@ def _crossing_sides_impl(body, partner, x, d3, half, end_fraction, min_sin, cn_o
             continue
         if s <= end_fraction or s >= 1.0 - end_fraction or t <= end_fraction or t >= 1.0 - end_fraction:
             continue
-        ta = (2.0 * s - 1.0) * ha
-        tb = (2.0 * t - 1.0) * hb
+        ta = (2.0 * s - 1.0) * half[a]
+        tb = (2.0 * t - 1.0) * half[b]
         dot = 0.0
         for i in range(3):
             dot += (ta * d3[a, i] - tb * d3[b, i] + x[a, i] - x[b, i]) * cn_out[k, i]
