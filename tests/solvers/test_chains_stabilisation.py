@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from headsim.collide import PlaneField
-from headsim.errors import ParameterError
+from headsim.errors import DivergenceError, ParameterError
 from headsim.hair.drape import build_drape_scene
 from headsim.solvers._kernels import chains_pairs as KP
 from headsim.solvers.chains import (
@@ -230,6 +230,16 @@ def test_max_rotation_per_step_must_be_a_positive_angle_or_none():
     for bad in (0.0, -0.5, float("nan"), float("inf"), "0.5", True):
         with pytest.raises(ParameterError):
             ChainOptions(max_rotation_per_step=bad)
+
+
+def test_a_state_moving_far_beyond_the_scene_in_one_step_is_a_divergence():
+    """A segment at 10⁹ m/s (a diverged state: 10⁶ m in a 1 ms step, for 6 mm of fibre) is reported as a
+    DivergenceError before any grid is sized from its speed, not as an overflow."""
+    model, state = _crossed_pair(0.0)
+    v = np.array([[1e9, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    state = ChainState(state.position, state.rotation, v, state.angular_velocity, state.time)
+    with pytest.raises(DivergenceError, match="diverged"):
+        ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0))).step(model, state, 1e-3)
 
 
 def test_step_halvings_must_be_a_small_integer():

@@ -351,6 +351,9 @@ ENERGY_ROUNDOFF = 1e-9
 # ChainOptions.post_stabilisation: the overlap (fraction of the radius) a correction leaves; it runs where a pair
 # overlaps by twice that
 POST_SLOP_FRACTION = 0.1
+# a (sub)step whose fibres spread over, or in which a segment's point would move, this many times the fibres' total
+# length is a diverged state (raised as such before the candidate band's grid is sized from it)
+DIVERGED_REACH = 1000.0
 # ChainOptions.restore_crossings: a pair's crossing sign counts where both closest points are farther than this
 # fraction of the segment's length from its ends and the axes cross at sin > CROSSING_MIN_SIN (3°)
 CROSSING_END_FRACTION = 0.05
@@ -1616,6 +1619,15 @@ class ChainSolver:
                 # segments' own speeds in the first step) for the relative band and the reserve's split
                 dhat_used = np.ascontiguousarray(
                     self._dhat if self._dhat is not None and len(self._dhat) == S else self._speed)
+                size = 2.0 * float(model.half_length.sum())  # all fibres end to end
+                reach = max(dt * float(self._speed.max(initial=0.0) + 1.5 * dhat_used.max(initial=0.0)),
+                            float(np.ptp(x, axis=0).max()))
+                if not reach <= DIVERGED_REACH * size:
+                    raise DivergenceError(f"the fibres spread over {reach:.3g} m, or a segment's speed or its expected "
+                                          f"velocity change would move it that far in one step, at t = "
+                                          f"{state.time:.4g} s: {DIVERGED_REACH:g} × their total length "
+                                          f"({size:.3g} m) or more; the simulation diverged (dt = {dt:g} s); "
+                                          "reduce dt")
                 self._pair_speed = None
                 if (o.candidate_band == "relative" and o.contact_coupling == "coupled" and S > 1
                         and not force_absolute):
