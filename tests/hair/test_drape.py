@@ -292,7 +292,8 @@ def _shared_runs(directory, jobs, wait_s=1800.0):
     sharing, the module-scoped fixture ran in both workers whenever its tests were split between them: two
     × 200–280 s on 2 cores. pytest-xdist's ``--dist loadgroup`` does not keep them together under pytest 9.2:
     it tags the groups through ``item._nodeid``, which pytest 9 no longer reads.) A claim whose result does
-    not appear within ``wait_s`` (its worker died) is run here."""
+    not appear within ``wait_s`` (its worker died) is run here; a job that raised in its worker (``<name>.failed``)
+    fails the waiting workers at once."""
     import os
     import pickle
     import time
@@ -303,7 +304,11 @@ def _shared_runs(directory, jobs, wait_s=1800.0):
             os.close(os.open(directory / f"{name}.claim", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
         except FileExistsError:
             continue
-        out[name] = job()
+        try:
+            out[name] = job()
+        except BaseException as e:  # the workers waiting for this job fail at once instead of after wait_s
+            (directory / f"{name}.failed").write_text(f"{type(e).__name__}: {e}")
+            raise
         tmp = directory / f"{name}.{os.getpid()}.tmp"
         with tmp.open("wb") as f:
             pickle.dump(out[name], f)
@@ -313,7 +318,10 @@ def _shared_runs(directory, jobs, wait_s=1800.0):
         if name in out:
             continue
         path = directory / f"{name}.pkl"
+        failed = directory / f"{name}.failed"
         while not path.exists() and time.monotonic() < deadline:
+            if failed.exists():
+                raise RuntimeError(f"the shared run {name!r} failed in another worker: {failed.read_text()}")
             time.sleep(0.5)
         if path.exists():
             with path.open("rb") as f:
@@ -321,6 +329,18 @@ def _shared_runs(directory, jobs, wait_s=1800.0):
         else:
             out[name] = job()
     return out
+
+
+def test_a_shared_run_that_fails_fails_the_waiting_worker_at_once(tmp_path):
+    """_shared_runs: the worker that claimed a job re-raises its error and marks it; a second worker (here the
+    same process with the claim present) fails at once instead of waiting for a result that never comes."""
+    def boom():
+        raise ValueError("diverged")
+
+    with pytest.raises(ValueError, match="diverged"):
+        _shared_runs(tmp_path, {"none": boom})
+    with pytest.raises(RuntimeError, match="failed in another worker: ValueError: diverged"):
+        _shared_runs(tmp_path, {"none": boom}, wait_s=60.0)
 
 
 @pytest.fixture(scope="module")
