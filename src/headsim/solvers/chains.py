@@ -295,6 +295,15 @@ def _merged_stats(first: StepStats, second: StepStats) -> StepStats:
     return out
 
 
+def _obstacle_row_geometry(ob: Obstacle, c: np.ndarray, r: np.ndarray, centre: np.ndarray):
+    """(unit normal (n, 3), lever (n, 3) m, gap (n,) m) of obstacle rows whose axis points c (n, 3) m, of segments
+    of radius r (n,) m centred at ``centre`` (n, 3), lie against ``ob``: the field's normal at c, the contact point
+    c − r n less the centre, and φ(c) − level − r."""
+    normal = ob.field.normal(c)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    return normal, c - r[:, None] * normal - centre, ob.field.distance(c) - ob.level - r
+
+
 def _stored_impulses(rows, impulses):
     """(sorted keys, λ, friction) of the rows of a solve's ``impulses`` = (λ, friction) that carry a normal
     impulse: the next step's warm start (:meth:`ChainSolver._warm_start_impulses`); None without a solve."""
@@ -433,8 +442,6 @@ class ChainSolver:
         self._widen_seconds = 0.0  # candidate_band="relative": their time, s
         self._rel_grid = None  # candidate_band="relative": the LocalMotionBound of this step's detection state
         self._post_input = None  # post_stabilisation: (rows, mid-step rotations) of the last step
-        self._crossings_restored = 0
-        self._end_overlap = float("nan")
         self._last_energy = None  # (the state step() returned last, the statistics holding its energies)
 
     @staticmethod
@@ -956,29 +963,25 @@ class ChainSolver:
         local = np.einsum("kji,kj->ki", R_mid[sb], rows.lever[sel] + r[:, None] * rows.normal[sel])
         c = x[sb] + np.einsum("kij,kj->ki", R[sb], local)
         which = ((-1 - rows.key[sel]) // 3) // model.n_segments  # _obstacle_key
-        gap, normal = np.empty(len(sel)), np.empty((len(sel), 3))
+        gap, normal, lever = np.empty(len(sel)), np.empty((len(sel), 3)), np.empty((len(sel), 3))
         for i, ob in enumerate(obstacles):
             m = which == i
             if m.any():
-                gap[m] = ob.field.distance(c[m]) - ob.level - r[m]
-                normal[m] = ob.field.normal(c[m])
-        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
-        return sb, np.full(len(sb), -1, np.int64), normal, c - r[:, None] * normal - x[sb], np.zeros((len(sb), 3)), gap
+                normal[m], lever[m], gap[m] = _obstacle_row_geometry(ob, c[m], r[m], x[sb[m]])
+        return sb, np.full(len(sb), -1, np.int64), normal, lever, np.zeros((len(sb), 3)), gap
 
     def _end_rows(self, model, rows, x, R, R_mid, obstacles, start):
         """The step's rows evaluated at the state x, R (fibre pairs: :meth:`_end_fibre_rows`, turned back where
-        they passed through each other since ``start`` (``restore_crossings``; their number in
-        ``self._crossings_restored``); obstacle rows: :meth:`_end_obstacle_rows`): (body, partner, normal, lever,
-        partner lever, gap); sets ``self._end_overlap`` (m), the largest overlap −min(gap, 0) among them."""
+        they passed through each other since ``start`` (``restore_crossings``); obstacle rows:
+        :meth:`_end_obstacle_rows`): ((body, partner, normal, lever, partner lever, gap), the number of pairs
+        turned back)."""
         parts = [self._end_fibre_rows(model, rows, x, R)]
-        self._crossings_restored = 0
+        turned = 0
         if self.options.restore_crossings and start is not None:
-            self._crossings_restored = self._restore_crossings(model, start, *parts[0], x, R[:, :, 2])
+            turned = self._restore_crossings(model, start, *parts[0], x, R[:, :, 2])
         if obstacles and (rows.partner < 0).any():
             parts.append(self._end_obstacle_rows(model, rows, x, R, R_mid, obstacles))
-        out = tuple(np.concatenate(z) for z in zip(*parts))
-        self._end_overlap = float(max(0.0, -out[5].min(initial=0.0)))
-        return out
+        return tuple(np.concatenate(z) for z in zip(*parts)), turned
 
     @staticmethod
     def _hot_obstacle_rows(model, x, R, seg, obstacles, reach):
@@ -1001,11 +1004,8 @@ class ChainSolver:
             m = np.nonzero(g < reach)[0]
             if not len(m):
                 continue
-            p = pts[m, j[m]]
-            nrm = ob.field.normal(p)
-            nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
-            out.append((seg[m], np.full(len(m), -1, np.int64), nrm, p - r[m, None] * nrm - x[seg[m]],
-                        np.zeros((len(m), 3)), g[m]))
+            nrm, lever, gap = _obstacle_row_geometry(ob, pts[m, j[m]], r[m], x[seg[m]])
+            out.append((seg[m], np.full(len(m), -1, np.int64), nrm, lever, np.zeros((len(m), 3)), gap))
         return tuple(np.concatenate(z) for z in zip(*out)) if out else none
 
     def _post_stabilise(self, model, rows, x, R, R_mid, dt, obstacles, start=None):
@@ -1014,14 +1014,18 @@ class ChainSolver:
         field at the row's axis point), and where one overlaps by more than 2 s (s = :data:`POST_SLOP_FRACTION` × its
         radius), the fibres of those rows get a position-only correction: min ½‖Δu‖²_M (with the joint springs'
         rows) s.t. Δt J_α Δu ≥ −(g_α + s) for every row of theirs within a radius of contact, their joints' anchors
-        moving together; q ← q + Δt Δu (exponential map), velocities unchanged. Returns the corrected (x, R)."""
+        moving together; q ← q + Δt Δu (exponential map), velocities unchanged. Returns the corrected (x, R) (the
+        given arrays where nothing overlapped that deep), the pairs turned back (``restore_crossings``) and the
+        largest overlap (m) of the rows at x, R."""
         o = self.options
         fib = model.segment_fibre
-        body, partner, normal, lever, plever, gap = self._end_rows(model, rows, x, R, R_mid, obstacles, start)
+        (body, partner, normal, lever, plever, gap), turned = self._end_rows(model, rows, x, R, R_mid, obstacles,
+                                                                            start)
+        overlap = float(max(0.0, -gap.min(initial=0.0)))
         r = model.radius[body]
         deep = gap < -2.0 * POST_SLOP_FRACTION * r
         if not deep.any():
-            return x, R
+            return x, R, turned, overlap
         hot = np.zeros(model.n_fibres + 1, bool)  # the last entry, read for an obstacle partner (−1), stays False
         hot[fib[body[deep]]] = True
         pf = np.where(partner >= 0, fib[np.maximum(partner, 0)], -1)
@@ -1029,7 +1033,7 @@ class ChainSolver:
         near = np.nonzero((gap < r) & (hot[fib[body]] | hot[pf]))[0]
         body, partner, normal, lever, plever, gap, r = (np.ascontiguousarray(a[near]) for a in
                                                         (body, partner, normal, lever, plever, gap, r))
-        if obstacles and self._crossings_restored:
+        if obstacles and turned:
             # a pair turned back moves by up to its whole overlap: the obstacles near its fibres hold too, also
             # where the step had no row (its segments were not near them at the mid state)
             reach = float(max(0.0, -gap.min(initial=0.0))) + float(model.radius.max())
@@ -1054,7 +1058,7 @@ class ChainSolver:
         (K.half_step if par else K.half_step_serial)(x, R, np.ascontiguousarray(du[:, :3]),
                                                      np.ascontiguousarray(du[:, 3:]), model.inertia, dt, x_out,
                                                      R_out, w_out)
-        return x_out, R_out
+        return x_out, R_out, turned, overlap
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
                   x_mid=None, warm=None, pass_key=0, joints_last=False, u_spring=None, spring_step=0.5, budget=False,
@@ -1390,19 +1394,20 @@ class ChainSolver:
         x, R = new.position, new.rotation
         st = self.last_stats
         st.crossings_restored = 0
-        evaluated = False  # whether the returned state's rows were evaluated (for StepStats.end_overlap)
+        overlap = None  # the largest overlap of the rows at the returned state (StepStats.end_overlap)
         for _ in range(POST_ROUNDS):
-            x_c, R_c = self._post_stabilise(model, rows, x, R, R_mid, dt, obstacles, start)
-            st.crossings_restored += self._crossings_restored
+            x_c, R_c, turned, before = self._post_stabilise(model, rows, x, R, R_mid, dt, obstacles, start)
+            st.crossings_restored += turned
             if x_c is x:
-                evaluated = True
+                overlap = before
                 break
             x, R = x_c, R_c
-            if not self._crossings_restored:  # a round that turned no pair back moved nothing far
+            if not turned:  # a round that turned no pair back moved nothing far
                 break
-        if not evaluated:  # the overlap the last correction left
-            self._end_rows(model, rows, x, R, R_mid, obstacles, start)
-        st.end_overlap = self._end_overlap
+        if overlap is None:  # the overlap the last correction left
+            gap = self._end_rows(model, rows, x, R, R_mid, obstacles, start)[0][5]
+            overlap = float(max(0.0, -gap.min(initial=0.0)))
+        st.end_overlap = overlap
         if x is not new.position:
             if not (np.isfinite(x).all() and np.isfinite(R).all()):
                 raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "

@@ -31,13 +31,19 @@ def _twist_normal_speed(u, s, n0, n1, n2, r0, r1, r2):
 
 
 @njit(cache=True, inline="always")
-def _touching_normal(d3, a, b):
-    """Normal of two segments whose axes touch (no direction between the closest points): the axes' cross
-    product, +y where they are also parallel."""
+def _axes_cross(d3, a, b):
+    """e_a × e_b of the unit axes d3 of segments a and b, and its norm (the sine of their angle)."""
     c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
     c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
     c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
-    cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    return c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+
+
+@njit(cache=True, inline="always")
+def _touching_normal(d3, a, b):
+    """Normal of two segments whose axes touch (no direction between the closest points): the axes' cross
+    product, +y where they are also parallel."""
+    c0, c1, c2, cn = _axes_cross(d3, a, b)
     if cn > 1e-12:
         return c0 / cn, c1 / cn, c2 / cn
     return 0.0, 1.0, 0.0
@@ -669,10 +675,7 @@ def _crossing_sides_impl(body, partner, x, d3, half, end_fraction, min_sin, cn_o
         a = body[k]
         b = partner[k]
         s, t = _axes_closest(x, d3, half, a, b)
-        c0 = d3[a, 1] * d3[b, 2] - d3[a, 2] * d3[b, 1]
-        c1 = d3[a, 2] * d3[b, 0] - d3[a, 0] * d3[b, 2]
-        c2 = d3[a, 0] * d3[b, 1] - d3[a, 1] * d3[b, 0]
-        sn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        c0, c1, c2, sn = _axes_cross(d3, a, b)
         side_out[k] = 0.0
         if sn > min_sin:
             cn_out[k, 0] = c0 / sn
