@@ -4,7 +4,8 @@ Checks: the end-state pair geometry kernel against brute-force closest points; a
 no overlap deeper than its slop and keeps the velocities; a step that would raise the total energy is taken as
 two halves, and on the terrain drape, whose frictionless strand gained energy step after step without it, the
 energy never rises (ε = 0, a conservation law); a step that turns a segment too far is halved, and a free
-spinning segment still turns exactly as the analytic solution.
+spinning segment still turns exactly as the analytic solution; a pair that passed through in a step is turned back
+to its side, also when its contact's row was on the neighbouring segment across a joint.
 """
 
 import numpy as np
@@ -19,6 +20,7 @@ from headsim.solvers.chains import (
     ChainOptions,
     ChainSolver,
     ChainState,
+    FrictionLaw,
     Obstacle,
     chain_model_from_polylines,
     polylines_from_state,
@@ -190,6 +192,53 @@ def test_a_pair_that_passed_through_in_a_step_is_turned_back_to_its_side(monkeyp
     assert ends[True].position[1, 1] > ends[True].position[0, 1]  # B back above A
     assert _overlap(model, ends[True]) < 1.05 * POST_SLOP_FRACTION * R_FIBRE
     np.testing.assert_array_equal(ends[True].velocity, ends[False].velocity)
+
+
+def test_a_pair_next_to_a_row_across_a_joint_that_passed_through_is_turned_back(monkeypatch):
+    """``restore_crossings`` for a contact that slides across a joint (issue 10, pass-throughs of pairs without a
+    row): A (one 3 mm segment along x) lies across B (two 3 mm segments along z, joint at z = 0) on B's second
+    segment b1, 0.3 mm from the joint, and slides towards it at 0.7 m/s (no gravity), so that at the mid-step
+    state it lies over the joint. There the detection may keep one row for the contact (its copies on both
+    segments of a joint are one contact); the step's rows are reduced to (A, b0) for this test. The solver's step
+    is replaced by one that ends with A back over b1 at z = 0.3 mm, its axis 30 µm below B's (through b1, 40 µm
+    of overlap on the far side). The pair (A, b1) has no row, so only the check of the rows' neighbours across
+    the joint finds that it passed through: with it A ends above B again (overlapping by at most the slop),
+    without ``restore_crossings`` A ends below B."""
+    L = 3e-3
+    a = np.array([[-L / 2, 2 * R_FIBRE, 0.3e-3], [L / 2, 2 * R_FIBRE, 0.3e-3]])
+    b = np.array([[0.0, 0.0, -L], [0.0, 0.0, 0.0], [0.0, 0.0, L]])
+    model, state = chain_model_from_polylines(np.concatenate([a, b]), [0, 2, 5], radius=R_FIBRE, anchored=False)
+    v = state.velocity.copy()
+    v[0, 2] = -0.7
+    state = ChainState(state.position, state.rotation, v, state.angular_velocity, state.time)
+    original = ChainSolver._step
+
+    def through(self, model, state, dt, obstacles, redo, force_absolute=False):
+        new = original(self, model, state, dt, obstacles, redo, force_absolute)
+        rows, R_mid = self._post_input
+        pairs = {(int(i), int(j)) for i, j in zip(rows.body, rows.partner)}
+        assert (0, 1) in pairs or (1, 0) in pairs  # the contact's row on b0
+        keep = ~(((rows.body == 0) & (rows.partner == 2)) | ((rows.body == 2) & (rows.partner == 0)))
+        self._post_input = (type(rows)(*[getattr(rows, f)[keep] for f in rows.__dataclass_fields__]), R_mid)
+        x = new.position.copy()
+        x[0] = (0.0, new.position[2, 1] - 30e-6, 0.3e-3)  # over b1's interior, axis 30 µm below B's
+        return ChainState(x, new.rotation, new.velocity, new.angular_velocity, new.time)
+
+    monkeypatch.setattr(ChainSolver, "_step", through)
+    ends, turned = {}, {}
+    for restore in (False, True):
+        solver = ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0), restore_crossings=restore,
+                                          friction=FrictionLaw.none()))
+        ends[restore] = solver.step(model, state, 1e-3)
+        turned[restore] = solver.last_stats.crossings_restored
+    assert turned == {False: 0, True: 1}
+    assert ends[False].position[0, 1] < ends[False].position[2, 1]  # the pass completed: A below B
+    assert ends[True].position[0, 1] > ends[True].position[2, 1]  # A back above B
+    e = ends[True]
+    ax = [(e.position[i] - model.half_length[i] * e.rotation[i, :, 2], e.position[i] + model.half_length[i]
+           * e.rotation[i, :, 2]) for i in (0, 2)]
+    gap = _brute_closest(*ax[0], *ax[1])[0] - 2 * R_FIBRE
+    assert gap > -1.05 * POST_SLOP_FRACTION * R_FIBRE
 
 
 def _spinning_segment(omega):

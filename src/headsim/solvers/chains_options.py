@@ -296,8 +296,16 @@ class ChainOptions:
         deepest axis point into the plane 84 / 58 µm (from the steps themselves, not the corrections); the sphere
         scenes turned no pair (bitwise unchanged); 89 against 87 ms per step on plane 20 × 50; reference scene at
         rest: no pair turned, 7 ms per step for the two crossing evaluations of its 173 k rows and candidates.
-        The flips left: pairs that were no rows of the step's last solve, and pairs whose closest point lies
-        near a segment end (a fibre passing round a joint).
+        The pairs next to a row across a joint are checked too (``ChainSolver._neighbour_crossings``): the
+        detection keeps one row of a contact at a joint, and the contact may slide past it during the step
+        (on plane 20 × 50, 17 of the 19 flips of pairs without a row had such a row). Measured with them (issue
+        10's thirty-fourth session; with / without): plane 20 × 50 flips 48 / 61, overlaps > 10 µm 472 / 400,
+        > 50 µm 34 / 43; plane 7 × 100 flips 9 / 8, terrain 7 × 100 3 / 2 (single runs of chaotic landings;
+        their overlaps within the run-to-run spread); sphere 19 × 30 unchanged; reference scene at rest
+        15 ms per evaluation (2–3 per step). The flips left (plane 20 × 50, traced): 34 of the step's rows whose
+        closest point lies within 5 % of a segment end at the step's start or end (before the correction), where
+        the crossing sign is not taken as a side (the criterion at 2 % was tried in the thirty-third session:
+        fewer flips, three times the overlaps).
     step_halvings : default 3: a step that ends with more total energy (kinetic + joint springs + gravity) than it
         started with, beyond 1e-9 of the kinetic and spring energies (round-off), is taken again as two steps of
         Δt/2, each checked the same way, down to Δt/2^step_halvings (the warm-start impulses scaled with the step);

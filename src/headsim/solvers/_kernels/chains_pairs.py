@@ -697,3 +697,46 @@ def _crossing_sides_impl(body, partner, x, d3, half, end_fraction, min_sin, cn_o
 
 
 crossing_sides, crossing_sides_parallel = serial_and_parallel(_crossing_sides_impl)
+
+
+@njit(cache=True)
+def joint_neighbour_pairs(body, partner, normal, lever, partner_lever, d3, half, radius, fibre, near, out_a, out_b):
+    """Pairs next to fibre rows across a joint (``ChainOptions.restore_crossings``; ChainSolver._neighbour_crossings):
+    for row k (segments a = body[k], b = partner[k]; unit normal, levers from the centres to the contact points, m)
+    its closest axis points' parameters τ_a = (lever + r_a n)·e_a / h_a and τ_b = (partner lever − r_b n)·e_b / h_b
+    in [−1, 1]; where |τ_a| ≥ ``near`` and the segment a' = a ± 1 across that end is of a's fibre, the pair (a', b),
+    likewise (a, b'), and (a', b') where both exist. Pairs of one segment with itself or its joint neighbour are left
+    out. Writes (min, max) segment pairs to out_a, out_b (3 × rows long) and returns their number (duplicates kept)."""
+    S = half.shape[0]
+    m = 0
+    for k in range(body.shape[0]):
+        a = body[k]
+        b = partner[k]
+        ta = 0.0
+        tb = 0.0
+        for i in range(3):
+            ta += (lever[k, i] + radius[a] * normal[k, i]) * d3[a, i]
+            tb += (partner_lever[k, i] - radius[b] * normal[k, i]) * d3[b, i]
+        ta /= half[a]
+        tb /= half[b]
+        a1 = -1
+        b1 = -1
+        if abs(ta) >= near:
+            c = a + 1 if ta >= 0.0 else a - 1
+            if 0 <= c < S and fibre[c] == fibre[a]:
+                a1 = c
+        if abs(tb) >= near:
+            c = b + 1 if tb >= 0.0 else b - 1
+            if 0 <= c < S and fibre[c] == fibre[b]:
+                b1 = c
+        for p, q in ((a1, b), (a, b1), (a1, b1)):
+            if p < 0 or q < 0:
+                continue
+            lo = min(p, q)
+            hi = max(p, q)
+            if fibre[lo] == fibre[hi] and hi - lo <= 1:
+                continue
+            out_a[m] = lo
+            out_b[m] = hi
+            m += 1
+    return m
