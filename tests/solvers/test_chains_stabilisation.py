@@ -16,6 +16,7 @@ from headsim.errors import DivergenceError, ParameterError
 from headsim.hair.drape import build_drape_scene
 from headsim.solvers._kernels import chains_pairs as KP
 from headsim.solvers.chains import (
+    CORRECTION_TRUST,
     POST_SLOP_FRACTION,
     ChainOptions,
     ChainSolver,
@@ -25,6 +26,7 @@ from headsim.solvers.chains import (
     chain_model_from_polylines,
     polylines_from_state,
 )
+from headsim.solvers.chains import _trusted_correction as trusted_correction
 
 R_FIBRE = 35e-6
 
@@ -239,6 +241,33 @@ def test_a_pair_next_to_a_row_across_a_joint_that_passed_through_is_turned_back(
            * e.rotation[i, :, 2]) for i in (0, 2)]
     gap = _brute_closest(*ax[0], *ax[1])[0] - 2 * R_FIBRE
     assert gap > -1.05 * POST_SLOP_FRACTION * R_FIBRE
+
+
+def test_a_position_correction_moves_no_fibre_point_beyond_its_trust_bound():
+    """_trusted_correction: the split push-out or post-stabilisation twists of a fibre that would move one of its
+    points by more than CORRECTION_TRUST × the largest correction asked for (here 100 × of 2 µm over 1 ms) are
+    scaled down so that the fibre's farthest-moving point moves exactly that bound, the same factor for all its
+    segments (its joints stay consistent); a fibre within the bound, and a spin about a segment's own axis (which
+    moves no point of the capsule), are left as they are."""
+    polys = np.array([[0.0, 0.0, 0.0], [3e-3, 0.0, 0.0], [6e-3, 0.0, 0.0],
+                      [0.0, 1e-3, 0.0], [3e-3, 1e-3, 0.0], [6e-3, 1e-3, 0.0]])
+    model, state = chain_model_from_polylines(polys, [0, 3, 6], radius=R_FIBRE, anchored=False)
+    R, dt, asked = state.rotation, 1e-3, 2e-6
+    base = np.zeros((4, 6))
+    corr = np.zeros((4, 6))
+    corr[0, 1] = 0.2  # fibre 0: 0.2 mm in y over the step (100 × the 2 µm asked, 10 × the trust bound of 20 µm)
+    corr[1, 5] = 10.0  # and its second segment turns about z: its ends move by h ω Δt = 15 µm
+    corr[2, 1] = 0.01  # fibre 1: 10 µm, within the bound
+    corr[3, 3] = 1000.0  # and a spin about its own axis (x): moves no point
+    out = trusted_correction(model, base, corr, R, dt, asked)
+    h = model.half_length
+    move = (np.abs(out[:, 1]) + h * np.abs(out[:, 5])) * dt
+    assert move[:2].max() == pytest.approx(CORRECTION_TRUST * asked)
+    np.testing.assert_allclose(out[:2], corr[:2] * (CORRECTION_TRUST * asked / 200e-6))
+    np.testing.assert_array_equal(out[2:], corr[2:])
+    within = corr.copy()
+    within[:2] = 0.0
+    assert trusted_correction(model, base, within, R, dt, asked) is within  # nothing over the bound: unchanged
 
 
 def _spinning_segment(omega):

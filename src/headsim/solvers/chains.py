@@ -269,6 +269,32 @@ def _spin_carried(w: np.ndarray, R: np.ndarray, R_mid: np.ndarray, inertia: np.n
     return _apply_scaled(R_mid, 1.0 / inertia, _apply_scaled(R, inertia, w))
 
 
+def _trusted_correction(model, base, corrected, R, dt, asked):
+    """The position correction ``corrected`` − ``base`` (twists (S, 6), applied over ``dt`` s) with every fibre's
+    part scaled down where it moves a point of that fibre (|Δv| + h|Δω⊥|)Δt, Δω⊥ the part of Δω across the
+    segment's axis (spin about it moves no point of the capsule) by more than :data:`CORRECTION_TRUST` × ``asked``
+    (m, the largest correction the solve's targets ask for). A split push-out or post-stabilisation whose constraints
+    cannot all hold (a fibre pinched between obstacles and neighbours, with its joints' gaps to close) has no
+    bounded solution: its Gauss–Seidel impulses grow with every sweep, and unscaled its answer moved points by
+    millimetres to centimetres for corrections of microns (measured on the frictionless helical strand 7 × 30,
+    t = 0.365–0.37 s: 10 % of the push-outs moved a point by more than 180 × the largest correction asked for,
+    up to 3,400 ×; the reference scene at rest ≤ 2.2 ×). Returns ``corrected`` itself where no fibre is over the
+    bound."""
+    d = np.ascontiguousarray(corrected - base)
+    e = R[:, :, 2]
+    dw = d[:, 3:] - np.einsum("ij,ij->i", d[:, 3:], e)[:, None] * e
+    move = (np.sqrt(np.einsum("ij,ij->i", d[:, :3], d[:, :3])) + model.half_length
+            * np.sqrt(np.einsum("ij,ij->i", dw, dw))) * dt
+    worst = np.zeros(model.n_fibres)
+    np.maximum.at(worst, model.segment_fibre, move)
+    bound = CORRECTION_TRUST * asked
+    over = worst > bound
+    if not over.any():
+        return corrected
+    scale = np.where(over, bound / np.where(over, worst, 1.0), 1.0)[model.segment_fibre]
+    return base + scale[:, None] * d
+
+
 def _record_energies(st: StepStats, model: ChainModel, state: ChainState, gravity) -> StepStats:
     """Write the kinetic, gravity and spring energies (J) and the largest joint gap (m) of ``state`` into ``st``;
     returns it."""
@@ -363,6 +389,10 @@ POST_SLOP_FRACTION = 0.1
 # a (sub)step whose fibres spread over, or in which a segment's point would move, this many times the fibres' total
 # length is a diverged state (raised as such before the candidate band's grid is sized from it)
 DIVERGED_REACH = 1000.0
+# a position correction (the split push-out, the post-stabilisation) moves no point of a fibre by more than this
+# many times the largest correction its targets ask for (row depth, joint gap); a larger one is scaled down to it
+# (ChainSolver._trusted_correction)
+CORRECTION_TRUST = 10.0
 # ChainOptions.restore_crossings: a pair's crossing sign counts where both closest points are farther than this
 # fraction of the segment's length from its ends and the axes cross at sin > CROSSING_MIN_SIN (3°)
 CROSSING_END_FRACTION = 0.05
@@ -1101,6 +1131,9 @@ class ChainSolver:
                            jrk, jrl, np.ascontiguousarray(jt), jc, jw0, _chain_offsets(jk, jl), -1, par,
                            momentum=self._momentum, root_sweeps=int(o.root_sweeps), root_segments=int(o.root_segments),
                            joints_last=True)
+        # (an unbounded correction scaled down: _trusted_correction)
+        du = np.ascontiguousarray(_trusted_correction(model, np.zeros_like(du), du, R, dt,
+                                                      float(np.max(-(gap + POST_SLOP_FRACTION * r)))))
         x_out, R_out, w_out = np.empty_like(x), np.empty_like(R), np.empty((S, 3))
         (K.half_step if par else K.half_step_serial)(x, R, np.ascontiguousarray(du[:, :3]),
                                                      np.ascontiguousarray(du[:, 3:]), model.inertia, dt, x_out,
@@ -1781,6 +1814,11 @@ class ChainSolver:
                                            sweep_cap=o.push_out_sweeps, joint_target=joint_push)
                     push_impulses = self._impulses
                     pass_promoted += self._promoted
+                    if o.split_recovery:  # a push-out without a bounded solution is scaled down (see the helper)
+                        asked = 2.0 * beta_pos * max(0.0, -float(gaps_pos.min(initial=0.0)))
+                        if joint_push is not None:
+                            asked = max(asked, dt * float(np.sqrt((joint_push * joint_push).sum(1)).max()))
+                        u_pos = _trusted_correction(model, u_vel, u_pos, R_mid, dt, asked)
                 checks = [(u_vel, 0.0)] + ([(u_pos, beta_pos)] if u_pos is not u_vel else [])
                 if track:  # this pass's velocity changes (against the detection's u⁻)
                     pass_change = _speed_change(u_vel, u_det, model.half_length)

@@ -50,7 +50,19 @@ class ChainOptions:
         three timed steps, against 6.2–9.3 k and 41–47 µm).
     penetration_recovery : β ∈ [0, 1], fraction of a penetration removed per half step; the push-out is
         applied to the positions only (split impulse: a second contact solve whose velocity is not kept),
-        so it adds no kinetic energy (``split_recovery=False``: the push-out is kept as velocity).
+        so it adds no kinetic energy (``split_recovery=False``: the push-out is kept as velocity). Its
+        constraints need not have a common solution (a segment pinched between an obstacle and neighbours while
+        its joint gaps are closed): then its Gauss–Seidel impulses grow with every sweep, and a fibre whose
+        correction would move a point by more than :data:`~headsim.solvers.chains.CORRECTION_TRUST` × the
+        largest correction asked for (2β × the deepest penetration, or the largest joint gap closed) is moved
+        only that far (``chains._trusted_correction``; likewise the post-stabilisation). Measured (issue 10's
+        thirty-fourth session): the frictionless helical strand 7 × 30 had push-outs moving points by up to
+        2.3 cm for corrections of 7 µm, and 4 steps at t = 0.365–0.368 s gained up to 5e-7 J (≈ 20 % of its
+        kinetic energy) though halved to Δt/8; bounded, no step of its runs (none 0.7 s, iso 1.5 s, aniso 5 s)
+        gains energy and none is halved. The reference scene at rest (≤ 2.2 × the correction asked for) and the
+        plane 7 × 100, terrain 7 × 100 and sphere landings are unchanged; plane 20 × 50 changes (its
+        overlaps > 10 µm 472 → 363 pair-steps, flips 48 → 47; its 3 rising steps, ≤ 6.4e-8 J, remain: their
+        kinetic energy gain exceeds the springs' release in the velocity stage, not in a correction).
     recovery_keeps_joints : coupled mode, split push-out: end the push-out solve with one exact joint solve
         of every touched chain, so the positions it moves satisfy every joint row J u = 0 even when the
         Gauss–Seidel stops at its sweep cap (the sweeps end with the contacts). Without it the capped
