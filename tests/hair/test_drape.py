@@ -109,16 +109,41 @@ def test_cli_drape_writes_outputs_and_rejects_bad_input(tmp_path, capsys):
     assert not (tmp_path / "torn").exists()
 
 
+def test_head_scene_hairs_start_combed_down_and_back_at_a_shallow_angle():
+    """The head scene's start direction (_growth_direction): a unit vector at arctan(1/2) ≈ 26.6° to the skin's
+    tangent plane (d·n = 1/√5), its tangential part along the comb direction (down and back) projected onto that
+    plane; on the crown, where down is along the normal, straight back."""
+    from headsim.hair.drape import COMB_DIRECTION, _growth_direction
+
+    rng = np.random.default_rng(1)
+    normals = rng.normal(size=(50, 3))
+    normals[:, 1] = np.abs(normals[:, 1])  # scalp normals point up or sideways
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    comb = np.asarray(COMB_DIRECTION) / np.linalg.norm(COMB_DIRECTION)
+    for n in normals:
+        d = _growth_direction(n)
+        assert np.linalg.norm(d) == pytest.approx(1.0)
+        assert d @ n == pytest.approx(1 / np.sqrt(5))
+        t = comb - (comb @ n) * n
+        tangential = d - (d @ n) * n
+        assert tangential @ t / (np.linalg.norm(tangential) * np.linalg.norm(t)) == pytest.approx(1.0)
+    crown = _growth_direction(np.array([0.0, 1.0, 0.0]))
+    np.testing.assert_allclose(crown, np.array([0.0, 1.0, -2.0]) / np.sqrt(5), atol=1e-12)
+
+
 def test_head_scene_roots_are_spaced_and_the_fibres_land_on_the_head():
-    """The head scene (20 × 15 segments, 15 cm) through the fibres' landing on the head (first contact at
-    t ≈ 0.38 s, tips at up to 3.5 m/s): no two anchored roots closer than 0.28 mm (with independent samples the
+    """The head scene (20 × 15 segments, 15 cm, combed down and back) through the fibres' landing on the head
+    (first contact at t ≈ 0.12 s, tips at up to 4.0 m/s): no two anchored roots closer than 0.28 mm (with
+    independent samples the
     40-fibre scene had two 42 µm apart, and that run diverged at t = 0.41 s), the fibres reach the head, and
     every joint gap opened in the landing is closed again by t = 0.45 s (``close_joint_gaps``; without it this run
     keeps 28 µm, the 40 × 30 one 22.5 µm), and no fibre axis (nodes and segment midpoints, every step) enters the
     skin, measured against the mesh by libigl (the criterion of ``test_draped_strand_sinks_less_than_a_fibre_radius``:
-    an overlap of a radius or more puts the axis on the surface). Measured: closest 22 µm (0.63 r) with the scene's
-    exact mesh distances; with the 3 mm grid field alone the axes went 32 µm into the skin in 39 of the 451 steps
-    (40 before the band grid was capped per segment)."""
+    an overlap of a radius or more puts the axis on the surface). Measured: closest 19 µm (0.53 r) with the scene's
+    exact mesh distances, final joint gap 35 nm (issue 10's thirty-fourth session). Before the hairs started combed
+    back (they started between the skin normal and straight down, so those on the crown stood up and landed at
+    t ≈ 0.38 s): closest 22 µm; with the 3 mm grid field alone the axes went 32 µm into the skin in 39 of the 451
+    steps (40 before the band grid was capped per segment)."""
     import igl
     from scipy.spatial import cKDTree
 

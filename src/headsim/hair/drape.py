@@ -387,6 +387,25 @@ def _terrain_field(spacing=2e-3):
     return fld, (v, tri)
 
 
+# head scene: a hair leaves the scalp along its comb direction at arctan(1 / GROWTH_TANGENT) (27°) to the skin; the
+# comb direction is down and back (y up, +z forward), projected onto the skin's tangent plane
+COMB_DIRECTION = (0.0, -1.0, -0.7)
+GROWTH_TANGENT = 2.0
+
+
+def _growth_direction(normal) -> np.ndarray:
+    """Unit start direction of a hair rooted where the skin's outward unit normal is ``normal``: n + 2 t, t the unit
+    tangent of :data:`COMB_DIRECTION` (straight back where that is along the normal)."""
+    n = np.asarray(normal, float)
+    for comb in (COMB_DIRECTION, (0.0, 0.0, -1.0), (1.0, 0.0, 0.0)):
+        t = np.asarray(comb, float)
+        t = t - (t @ n) * n
+        if np.linalg.norm(t) > 1e-3:
+            break
+    d = n + GROWTH_TANGENT * t / np.linalg.norm(t)
+    return d / np.linalg.norm(d)
+
+
 def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int | None = None,
                       segments: int | None = None, length: float = 0.30, dt: float = 1e-3,
                       duration: float | None = None, seed: int = 0, fibre_spacing: float | None = None,
@@ -484,14 +503,13 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
         fld = MeshDistanceField(v, t, 0.003, band=0.012)
         polys = []
         for p0, nr in zip(roots, normals):
-            d = nr + np.array([0.0, -0.6, 0.0])
-            d /= np.linalg.norm(d)
+            d = _growth_direction(nr)
             polys.append(p0 + 3 * r * nr + np.linspace(0, length, n + 1)[:, None] * d)
         obstacles = [Obstacle(fld, name="head")]
         mesh = (v, t)
         desc = (f"{len(roots)} fibres × {n} segments, {length * 100:g} cm, rooted on the bundled head's scalp, "
-                "starting between the skin normal and straight down; skin distances exact within 6.8 mm (3 mm grid, "
-                f"12 mm band); friction {friction_mode}")
+                f"growing combed down and back at {np.degrees(np.arctan(1 / GROWTH_TANGENT)):.0f}° to the skin; skin "
+                f"distances exact within 6.8 mm (3 mm grid, 12 mm band); friction {friction_mode}")
         dur = 0.5 if duration is None else duration
     nodes = np.concatenate(polys)
     offsets = np.arange(0, len(nodes) + 1, polys[0].shape[0])
