@@ -603,6 +603,15 @@ pair-steps > 10 µm against 478, 152 µm into the plane against 62), so it runs 
 solves. No step of this state is halved (the energy falls in every one). The full comparison (``--steps 3
 --loop-steps 1`` from the saved state, machine shared with other runs): coupled 1.85 s per step, per-body batched
 4.13 s, one fibre at a time 6.04 s (batched per-body 1.5 × the loop; coupled 0.31 of the loop).
+
+Thirty-fourth session (``restore_crossings`` also checks the rows' joint neighbours, 2–3 evaluations of 15 ms per
+step here; position corrections bounded by ``CORRECTION_TRUST``, which does not act on this state: its push-outs
+move no point by more than 2.2 × the correction asked for). The full comparison (``--settle 2 --steps 4
+--loop-steps 1`` from the saved state, quiet machine): coupled 1.84 s per step wall (2.71 s CPU), per-body batched
+12.1 s (4 solver steps per step: its energy rose), one fibre at a time 25.6 s; coupled 0.07 of the loop (wall).
+Coupled only, alternated with the session's start tree (6035b9d, a worktree; ``--settle 3 --steps 6``): 1.34 /
+1.22 s per step before, 1.31 / 1.44 s after (within the noise; the same machine measured 0.87–1.12 s in the
+previous session). Goal 0.2 s: not met.
 """
 
 from __future__ import annotations

@@ -391,7 +391,7 @@ POST_SLOP_FRACTION = 0.1
 DIVERGED_REACH = 1000.0
 # a position correction (the split push-out, the post-stabilisation) moves no point of a fibre by more than this
 # many times the largest correction its targets ask for (row depth, joint gap); a larger one is scaled down to it
-# (ChainSolver._trusted_correction)
+# (_trusted_correction)
 CORRECTION_TRUST = 10.0
 # ChainOptions.restore_crossings: a pair's crossing sign counts where both closest points are farther than this
 # fraction of the segment's length from its ends and the axes cross at sin > CROSSING_MIN_SIN (3°)
