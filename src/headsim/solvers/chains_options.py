@@ -292,7 +292,10 @@ class ChainOptions:
         gap 92 / 232 µm; reference scene at rest (t = 1.0 s, 8 steps after 3): overlaps > 10 µm next to the
         roots 244 / 420 (largest 44 / 67 µm), elsewhere 1 / 4, 0.95 against 0.76 s per step. It does not stop
         fibres passing through each other within one step (the sign of the crossing flips): plane 7 × 100 16 / 27
-        such events, plane 20 × 50 149 / 337. False: the former end state.
+        such events, plane 20 × 50 149 / 337. The correction moves positions only, against gravity and the
+        joint springs: where it would make the step gain energy it is applied in part (½, ¼, ⅛) or not at all,
+        unless it turns a pair back (``ChainSolver._energy_limited_correction``; thirty-fourth session). False:
+        the former end state.
     restore_crossings : with ``post_stabilisation``, default True: a fibre pair of the step's rows that passed
         through its partner during the step (the sign of (e_a × e_b)·(c_a − c_b) changed between the step's start
         and end, closest points inside both segments, axes not parallel) is turned back: the post-stabilisation
