@@ -331,6 +331,12 @@ def _obstacle_row_geometry(ob: Obstacle, c: np.ndarray, r: np.ndarray, centre: n
     return normal, c - r[:, None] * normal - centre, ob.field.distance(c) - ob.level - r
 
 
+def _no_rows():
+    """An empty row set (body, partner, normal, lever, partner lever, gap), as the end-state row helpers return."""
+    return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
+            np.zeros(0))
+
+
 def _stored_impulses(rows, impulses):
     """(sorted keys, λ, friction) of the rows of a solve's ``impulses`` = (λ, friction) that carry a normal
     impulse: the next step's warm start (:meth:`ChainSolver._warm_start_impulses`); None without a solve."""
@@ -978,18 +984,25 @@ class ChainSolver:
         if not len(body):
             return 0
         k, sg0, cn1 = self._crossing_flips(model, start, body, partner, x_end, d3)
+        self._turn_back(model, k, sg0[k], cn1[k], body, partner, normal, lever, plever, gap, d3)
+        return len(k)
+
+    @staticmethod
+    def _turn_back(model, k, side0, cross1, body, partner, normal, lever, plever, gap, d3):
+        """Turn the rows k (of body, partner, normal, lever, plever, gap; modified in place) of pairs that passed
+        through each other back to their start side ``side0`` (k,): normal side0 × ``cross1`` (k, 3) (the unit
+        e_a × e_b at the end state, axes d3), gap −(distance + r_a + r_b), levers to the same axis points."""
         if len(k):
             a, b = body[k], partner[k]
             ra, rb = model.radius[a], model.radius[b]
             ta = np.einsum("ij,ij->i", lever[k] + ra[:, None] * normal[k], d3[a])
             tb = np.einsum("ij,ij->i", plever[k] - rb[:, None] * normal[k], d3[b])
             sep = (gap[k] + ra + rb)[:, None] * normal[k]  # c_a − c_b at the end
-            nk = sg0[k, None] * cn1[k]
+            nk = side0[:, None] * cross1
             normal[k] = nk
             gap[k] = np.einsum("ij,ij->i", nk, sep) - ra - rb
             lever[k] = ta[:, None] * d3[a] - ra[:, None] * nk
             plever[k] = tb[:, None] * d3[b] + rb[:, None] * nk
-        return len(k)
 
     def _neighbour_crossings(self, model, start, body, partner, normal, lever, plever, x, R):
         """Pairs next to the step's fibre rows across a joint that passed through each other
@@ -1003,27 +1016,25 @@ class ChainSolver:
         plane 20 × 50 landing: 17 of the 19 pass-throughs of pairs without a row had such a row)."""
         S = model.n_segments
         d3 = R[:, :, 2]
-        none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
-                np.zeros(0))
         ca, cb = np.empty(3 * len(body), np.int64), np.empty(3 * len(body), np.int64)
         m = KP.joint_neighbour_pairs(body, partner, np.ascontiguousarray(normal), np.ascontiguousarray(lever),
                                      np.ascontiguousarray(plever), np.ascontiguousarray(d3), model.half_length,
                                      model.radius, model.segment_fibre, 1.0 - 2.0 * CROSSING_END_FRACTION, ca, cb)
         if not m:
-            return none, 0
+            return _no_rows(), 0
         key = np.sort(ca[:m] * S + cb[:m])  # (np.unique hashes: 7 × slower on the reference scene's 10⁵ keys)
         key = key[np.concatenate(([True], key[1:] != key[:-1]))]
         cb_, cp_ = np.ascontiguousarray(key // S), np.ascontiguousarray(key % S)
-        k = self._crossing_flips(model, start, cb_, cp_, x, d3)[0]
+        k, sg0, cn1 = self._crossing_flips(model, start, cb_, cp_, x, d3)
         # a flipped pair that is a row itself was turned back with the rows
         lo, hi = np.minimum(body, partner), np.maximum(body, partner)
         k = np.array([j for j in k if not ((lo == cb_[j]) & (hi == cp_[j])).any()], np.int64)
         if not len(k):
-            return none, 0
+            return _no_rows(), 0
         fb, fp = np.ascontiguousarray(cb_[k]), np.ascontiguousarray(cp_[k])
         geo = self._pair_geometry(model, fb, fp, x, R)
-        turned = self._restore_crossings(model, start, fb, fp, *geo, x, d3)
-        return (fb, fp) + geo, turned
+        self._turn_back(model, np.arange(len(k)), sg0[k], cn1[k], fb, fp, *geo, d3)
+        return (fb, fp) + geo, len(k)
 
     def _end_obstacle_rows(self, model, rows, x, R, R_mid, obstacles):
         """The step's obstacle rows at the state x, R: the row's axis point (its contact point + r n at the mid
@@ -1066,11 +1077,9 @@ class ChainSolver:
         """Obstacle rows (body, −1, normal, lever, 0, gap) of the segments ``seg`` at the state x, R: per segment
         and obstacle the deepest of its axis end points and midpoint, where its gap φ − level − r is below
         ``reach`` (m)."""
-        none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
-                np.zeros(0))
         out = []
         if not len(seg):
-            return none
+            return _no_rows()
         d3 = R[seg, :, 2]
         h = model.half_length[seg, None]
         pts = np.stack([x[seg] - h * d3, x[seg], x[seg] + h * d3], axis=1)  # (n, 3 samples, 3)
@@ -1084,7 +1093,7 @@ class ChainSolver:
                 continue
             nrm, lever, gap = _obstacle_row_geometry(ob, pts[m, j[m]], r[m], x[seg[m]])
             out.append((seg[m], np.full(len(m), -1, np.int64), nrm, lever, np.zeros((len(m), 3)), gap))
-        return tuple(np.concatenate(z) for z in zip(*out)) if out else none
+        return tuple(np.concatenate(z) for z in zip(*out)) if out else _no_rows()
 
     def _post_stabilise(self, model, rows, x, R, R_mid, dt, obstacles, start=None):
         """Post-stabilisation (Cline & Pai 2003; ``ChainOptions.post_stabilisation``). The step's contact rows are
@@ -1490,11 +1499,12 @@ class ChainSolver:
                 raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "
                                       f"(dt = {dt:g} s); reduce dt")
             if not st.crossings_restored:  # (a pair turned back is moved back whatever the energy)
-                x, R = self._energy_limited_correction(model, start, new, x, R)
+                x_l, R_l = self._energy_limited_correction(model, start, new, x, R)
+                if x_l is not x:  # a part of the correction or none: the overlap it leaves is measured again
+                    x, R, overlap = x_l, R_l, None
             if x is not new.position:
                 new = ChainState(x, R, new.velocity, new.angular_velocity, new.time)
                 _record_energies(st, model, new, self.options.gravity)
-            overlap = None
         if overlap is None:  # the overlap the correction left
             gap = self._end_rows(model, rows, x, R, R_mid, obstacles, start)[0][5]
             overlap = float(max(0.0, -gap.min(initial=0.0)))
