@@ -1027,8 +1027,8 @@ class ChainSolver:
         cb_, cp_ = np.ascontiguousarray(key // S), np.ascontiguousarray(key % S)
         k, sg0, cn1 = self._crossing_flips(model, start, cb_, cp_, x, d3)
         # a flipped pair that is a row itself was turned back with the rows
-        lo, hi = np.minimum(body, partner), np.maximum(body, partner)
-        k = np.array([j for j in k if not ((lo == cb_[j]) & (hi == cp_[j])).any()], np.int64)
+        k = np.asarray(k, np.int64)
+        k = k[~np.isin(key[k], np.minimum(body, partner) * S + np.maximum(body, partner))]
         if not len(k):
             return _no_rows(), 0
         fb, fp = np.ascontiguousarray(cb_[k]), np.ascontiguousarray(cp_[k])
@@ -1498,13 +1498,18 @@ class ChainSolver:
             if not (np.isfinite(x).all() and np.isfinite(R).all()):
                 raise DivergenceError(f"non-finite post-stabilised positions at t = {new.time:.4g} s "
                                       f"(dt = {dt:g} s); reduce dt")
+            energies = None  # the returned state's energies, where the energy limit computed them
             if not st.crossings_restored:  # (a pair turned back is moved back whatever the energy)
-                x_l, R_l = self._energy_limited_correction(model, start, new, x, R)
+                x_l, R_l, energies = self._energy_limited_correction(model, start, new, x, R)
                 if x_l is not x:  # a part of the correction or none: the overlap it leaves is measured again
                     x, R, overlap = x_l, R_l, None
             if x is not new.position:
                 new = ChainState(x, R, new.velocity, new.angular_velocity, new.time)
-                _record_energies(st, model, new, self.options.gravity)
+                if energies is None:
+                    _record_energies(st, model, new, self.options.gravity)
+                else:
+                    for name in ("kinetic_energy", "potential_energy", "spring_energy", "max_joint_gap"):
+                        setattr(st, name, getattr(energies, name))
         if overlap is None:  # the overlap the correction left
             gap = self._end_rows(model, rows, x, R, R_mid, obstacles, start)[0][5]
             overlap = float(max(0.0, -gap.min(initial=0.0)))
@@ -1523,27 +1528,30 @@ class ChainSolver:
         in place would be lasting, an energy gain of a correction is of the order of the overlap's spring and
         gravity work. Measured (issue 10, thirty-fourth session): the frictionless terrain 7 × 100 strand's only
         rising step (t = 0.092 s, +7e-12 J) was a correction that added 1.29e-10 J to a step that had lost
-        1.22e-10 J."""
+        1.22e-10 J. Returns (x, R, their energies as :class:`StepStats`, or None for the uncorrected end state,
+        whose energies the step's statistics hold)."""
         begin = self._state_energies(model, start)
         before = self.last_stats
         scale = before.kinetic_energy + before.spring_energy + begin.kinetic_energy
         limit = max(begin.total_energy, before.total_energy) + ENERGY_ROUNDOFF * scale
         g = self.options.gravity
 
-        def total(xx, RR):
+        def energies(xx, RR):
             return _record_energies(StepStats(), model, ChainState(xx, RR, new.velocity, new.angular_velocity,
-                                                                   new.time), g).total_energy
+                                                                   new.time), g)
 
-        if total(x, R) <= limit:
-            return x, R
+        full = energies(x, R)
+        if full.total_energy <= limit:
+            return x, R, full
         x0, R0 = new.position, new.rotation
         phi = Rotation.from_matrix(np.einsum("sij,skj->sik", R, R0)).as_rotvec()  # R = exp(φ̃) R0
         for part in (0.5, 0.25, 0.125):
             xp = x0 + part * (x - x0)
             Rp = np.ascontiguousarray(np.einsum("sij,sjk->sik", Rotation.from_rotvec(part * phi).as_matrix(), R0))
-            if total(xp, Rp) <= limit:
-                return xp, Rp
-        return x0, R0
+            e = energies(xp, Rp)
+            if e.total_energy <= limit:
+                return xp, Rp, e
+        return x0, R0, None
 
     def _state_energies(self, model, state) -> StepStats:
         """Statistics holding the energies (J) of ``state``: the last step's when it is that step's result."""
