@@ -1144,10 +1144,8 @@ class ChainSolver:
         # (an unbounded correction scaled down: _trusted_correction)
         du = np.ascontiguousarray(_trusted_correction(model, np.zeros_like(du), du, R, dt,
                                                       float(np.max(-(gap + POST_SLOP_FRACTION * r)))))
-        x_out, R_out, w_out = np.empty_like(x), np.empty_like(R), np.empty((S, 3))
-        (K.half_step if par else K.half_step_serial)(x, R, np.ascontiguousarray(du[:, :3]),
-                                                     np.ascontiguousarray(du[:, 3:]), model.inertia, dt, x_out,
-                                                     R_out, w_out)
+        x_out, R_out = np.empty_like(x), np.empty_like(R)
+        K.exp_step(x, R, np.ascontiguousarray(du[:, :3]), np.ascontiguousarray(du[:, 3:]), dt, x_out, R_out)
         return x_out, R_out, turned, overlap
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
