@@ -344,7 +344,10 @@ class ChainOptions:
         flips 23 / 15 / 6, overlaps > 10 µm 104 / 56 / 56 pair-steps, max joint gap 61 / 25 / 21 µm, 36 / 52 /
         81 ms per step; plane 20 × 50 (0.3 s) 29 / 94 / 354 extra steps, flips 149 / 137 / 28, overlaps 478 /
         480 / 275, 60 / 79 / 145 ms per step; plane 7 × 100 overlaps 61 / 48 / 95, flips 16 / 14 / 27; the
-        sphere scenes never reached the limit (≤ 144 rad/s), bitwise unchanged.
+        sphere scenes never reached the limit (≤ 144 rad/s), bitwise unchanged. The spin-up's source (thirty-fifth
+        session, ``bench_terrain_spin.py``): it is the same without friction, warm starts, split push-out, second
+        harmonisation pass, end-velocity positions or post-stabilisation, and absent with
+        ``springs_in_first_half_step=False`` (≤ 206 rad/s): the first half step's sprung motion.
     close_joint_gaps : coupled mode with ``end_velocity_positions`` and ``split_recovery``, default True: the split
         push-out of the last pass also closes the joint gaps d^i (t_i) of the fibres with contact rows, its joint
         rows asking for −d^i/Δt where ‖d^i‖ exceeds ``push_out_slop`` × the radius (and the push-out runs for them
