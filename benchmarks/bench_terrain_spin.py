@@ -27,16 +27,14 @@ above.
 Where it comes from (thirty-fifth session, ``--set max_rotation_per_step=None``, ω at t = 0.070–0.074 s): the same
 spin-up, 440 → 596 → ≈ 750 → ≈ 950 → ≈ 1,170 rad/s, with ``--friction none`` and ``--friction iso``, and with
 ``warm_start=False``, ``split_recovery=False``, ``harmonisation_iterations=1``, ``end_velocity_positions=False`` or
-``post_stabilisation=False`` (each alone); also after the half steps became the exact torque-free motion of the
-segments (which removed a second-order growth of the axial spin, see ``_half_step_one``). With
+``post_stabilisation=False`` (each alone). With
 ``springs_in_first_half_step=False`` it does not start: 453, 198, 194, 185, 206 rad/s (joint gaps 55–87 µm, 6–8 s per
 step against 16–20 s). So it lives in the first half step's motion with the joint springs' impulses (the default,
 see that option's notes), not in the contacts' friction or the stabilisations. Traced with the defaults: fibre 316's
 segments 48–57 swing with the sign of their axial and transverse spin alternating every step (period-2 ringing), the
 kinetic energy of segments 46–59 rising 5–18 % per step (t = 0.070–0.073 s), by 10–16 % in each step's joint stage
 (Method I: from the start state's twists to the joint-corrected ones), the contact solves then adding or removing up
-to 10 %;
-their contact rows come and go (124–331 rows on segments 50–53 at t = 0.070 s, none on 53–57 at 0.073 s).
+to 10 %; their contact rows come and go (124–331 rows on segments 50–53 at t = 0.070 s, none on 53–57 at 0.073 s).
 """
 
 from __future__ import annotations

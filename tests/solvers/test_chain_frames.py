@@ -116,10 +116,15 @@ def test_joint_spring_moment_is_the_gradient_of_the_spring_energy():
 
 
 def _thin_segment_inertia():
-    """A 3 mm × 70 µm keratin segment's principal inertias (kg m²): I₁ = I₂ ≈ 1,225 I₃."""
-    m, r, length = 1300.0 * np.pi * 35e-6**2 * 3e-3, 35e-6, 3e-3
-    i1 = m * (3 * r * r + length * length) / 12.0
-    return np.array([i1, i1, 0.5 * m * r * r])
+    """A 3 mm × 70 µm keratin segment's principal inertias (kg m²) with the true axial moment
+    (``spherical_inertia=False``): I₁ = I₂ ≈ 1,225 I₃."""
+    from headsim.solvers.chains_model import chain_model_from_polylines
+
+    model, _ = chain_model_from_polylines(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 3e-3]]), [0, 2], radius=35e-6,
+                                          spherical_inertia=False)
+    inertia = model.inertia[0]
+    assert inertia[0] == inertia[1] and 1200 < inertia[0] / inertia[2] < 1250
+    return inertia
 
 
 def _euler_flow(R0, w0, inertia, h):
@@ -144,7 +149,7 @@ def test_half_step_is_the_torque_free_motion_of_an_axisymmetric_segment(build):
     over end at 100 rad/s keeps its axial spin (1 rad/s) and its kinetic energy over 10 half steps of 0.5 ms
     and matches Euler's equations. The former update, exp(h ω̃) R with ω re-derived from the kept angular
     momentum, multiplied the axial spin by 8,400 and the kinetic energy by 6.8 here (issue 10, thirty-fifth
-    session)."""
+    session). (With the models' default spherical inertia, I₃ = I₁, the two updates coincide.)"""
     from headsim.solvers._kernels.chains import half_step, half_step_serial
 
     step = half_step if build == "parallel" else half_step_serial

@@ -296,9 +296,13 @@ def _trusted_correction(model, base, corrected, R, dt, asked):
     return base + scale[:, None] * d
 
 
+# the StepStats fields _record_energies writes
+ENERGY_FIELDS = ("kinetic_energy", "potential_energy", "spring_energy", "max_joint_gap")
+
+
 def _record_energies(st: StepStats, model: ChainModel, state: ChainState, gravity) -> StepStats:
-    """Write the kinetic, gravity and spring energies (J) and the largest joint gap (m) of ``state`` into ``st``;
-    returns it."""
+    """Write the kinetic, gravity and spring energies (J) and the largest joint gap (m) of ``state`` into ``st``
+    (:data:`ENERGY_FIELDS`); returns it."""
     kin, spring, gap = chain_energies(model, state)
     st.kinetic_energy = float(kin.sum())
     st.potential_energy = potential_energy(model, state, np.asarray(gravity, float))
@@ -1145,7 +1149,8 @@ class ChainSolver:
         du = np.ascontiguousarray(_trusted_correction(model, np.zeros_like(du), du, R, dt,
                                                       float(np.max(-(gap + POST_SLOP_FRACTION * r)))))
         x_out, R_out = np.empty_like(x), np.empty_like(R)
-        K.exp_step(x, R, np.ascontiguousarray(du[:, :3]), np.ascontiguousarray(du[:, 3:]), dt, x_out, R_out)
+        (K.exp_step if par else K.exp_step_serial)(x, R, np.ascontiguousarray(du[:, :3]),
+                                                   np.ascontiguousarray(du[:, 3:]), dt, x_out, R_out)
         return x_out, R_out, turned, overlap
 
     def _contacts(self, rows, gaps, beta, order, row_off, bodies, u_minus, model, R_mid, Iwi, dt, lam, sweeps_box,
@@ -1506,7 +1511,7 @@ class ChainSolver:
                 if energies is None:
                     _record_energies(st, model, new, self.options.gravity)
                 else:
-                    for name in ("kinetic_energy", "potential_energy", "spring_energy", "max_joint_gap"):
+                    for name in ENERGY_FIELDS:
                         setattr(st, name, getattr(energies, name))
         if overlap is None:  # the overlap the correction left
             gap = self._end_rows(model, rows, x, R, R_mid, obstacles, start)[0][5]

@@ -234,8 +234,9 @@ def chain_model_from_polylines(nodes, fibre_offsets, *, radius: float = 35e-6, d
     I = (m(3r² + ℓ²)/12, same, m r²/2); with ``spherical_inertia`` (default) the axial moment is raised
     to the transverse one. Then ω × Iω ≡ 0, so neglecting the gyroscopic term is exact and the
     exponential-map rotation conserves the rotational energy; with the true axial moment (ℓ/r ≈ 100,
-    I₃/I₁ ≈ 1e-4) the explicit rotation update transfers energy between axial spin and tumbling and the
-    torsion spring is 10⁴ times stiffer relative to its inertia. The price: spin about the fibre's own
+    I₃/I₁ ≈ 1e-4) the torsion spring is 10⁴ times stiffer relative to its inertia (the half steps' rotation is
+    then the exact torque-free motion of the axisymmetric segment, :func:`headsim.solvers._kernels.chains.half_step`;
+    before issue 10's thirty-fifth session its exponential map moved energy from tumbling into axial spin). The price: spin about the fibre's own
     axis (rolling) is slowed by ≈ ℓ²/(6r²). Joint springs (EI₁, EI₂, GJ)/ℓ_j with EI = Eπr⁴/4,
     GJ = Gπr⁴/2 (G = E/(2(1 + 0.49)) when not given) and ℓ_j the centre distance, times
     ``stiffness_scale`` (the seed leaves the stiffness as a user parameter). ``rest_shape``:

@@ -147,7 +147,9 @@ def _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out):
         # the kinetic energy stay constant). The frozen-ω exponential exp(h ω̃) R with ω re-derived from L
         # instead turns L into the axis at second order: ω₃ grows by the factor 1 + ½ h² (I₁/I₃) |ω⊥|² per
         # step, and a thin segment's I₁/I₃ is ≈ 1,200 (3 mm × 70 µm): ×8,400 in 10 half steps of 0.5 ms at
-        # ω⊥ = 100 rad/s, its kinetic energy ×6.8 (issue 10, thirty-fifth session)
+        # ω⊥ = 100 rad/s, its kinetic energy ×6.8 (issue 10, thirty-fifth session). With the spherical inertia of
+        # chain_model_from_polylines' default (I₃ = I₁) λ = 0 and L/I₁ = ω: the two updates coincide; this one matters
+        # for the true axial moment (spherical_inertia=False)
         phi = h * b2 * (1.0 / inertia[s, 2] - 1.0 / i1)  # h λ, body frame b2 = L₃
         _exp_times_into(h * L0 / i1, h * L1 / i1, h * L2 / i1, R[s], R_out[s])
         cp, sp = np.cos(phi), np.sin(phi)
@@ -165,14 +167,27 @@ def _half_step_one(s, x, R, v, w, inertia, h, x_out, R_out, w_out):
         w_out[s, c] = R_out[s, c, 0] * n0 + R_out[s, c, 1] * n1 + R_out[s, c, 2] * n2
 
 
+@njit(cache=True, inline="always")
+def _exp_step_one(s, x, R, v, w, h, x_out, R_out):
+    """Body s of :func:`exp_step`."""
+    for c in range(3):
+        x_out[s, c] = x[s, c] + h * v[s, c]
+    _exp_times_into(h * w[s, 0], h * w[s, 1], h * w[s, 2], R[s], R_out[s])
+
+
 @njit(cache=True, parallel=True)
 def exp_step(x, R, v, w, h, x_out, R_out):
     """x + h v and exp(h w̃) R for every body: a position correction by the twist (v, w) over h (the exponential
     map; :func:`half_step` is the torque-free motion)."""
     for s in prange(x.shape[0]):
-        for c in range(3):
-            x_out[s, c] = x[s, c] + h * v[s, c]
-        _exp_times_into(h * w[s, 0], h * w[s, 1], h * w[s, 2], R[s], R_out[s])
+        _exp_step_one(s, x, R, v, w, h, x_out, R_out)
+
+
+@njit(cache=True)
+def exp_step_serial(x, R, v, w, h, x_out, R_out):
+    """Serial twin of :func:`exp_step`."""
+    for s in range(x.shape[0]):
+        _exp_step_one(s, x, R, v, w, h, x_out, R_out)
 
 
 @njit(cache=True, parallel=True)
