@@ -174,3 +174,40 @@ def test_half_step_is_the_torque_free_motion_of_an_axisymmetric_segment(build):
     R_ref, w_ref = _euler_flow(R0[0], w0, inertia[0], 5e-3)
     np.testing.assert_allclose(R[0], R_ref, atol=1e-9)
     np.testing.assert_allclose(w[0], w_ref, rtol=1e-8, atol=1e-8 * np.abs(w0).max())
+
+
+def test_selected_fibres_carry_their_share_of_energy_and_joint_gaps():
+    """select_fibres (the diagnostics' part of a scene): split into two complementary fibre sets, a bent, moving,
+    partly unanchored three-fibre model keeps every energy as the sum of the parts' and every joint gap, and each
+    part keeps its own roots (a wrong root or offset would move spring or gap terms between fibres)."""
+    from scipy.spatial.transform import Rotation
+
+    from headsim.errors import ParameterError
+    from headsim.solvers.chains_model import (ChainState, chain_model_from_polylines, joint_gaps, kinetic_energy,
+                                              potential_energy, select_fibres, spring_energy)
+
+    rng = np.random.default_rng(3)
+    nodes, offsets = [], [0]
+    for f, n in enumerate((5, 3, 7)):
+        s = np.linspace(0.0, 1.0, n)[:, None]
+        nodes.append(np.hstack([f * 1e-3 + 2e-3 * np.sin(3 * s), -1e-2 * s, 1e-3 * s**2]))
+        offsets.append(offsets[-1] + n)
+    model, state = chain_model_from_polylines(np.vstack(nodes), offsets, anchored=[True, False, True],
+                                              rest_shape="initial")
+    S = model.n_segments
+    state = ChainState(state.position + 1e-5 * rng.normal(size=(S, 3)),
+                       Rotation.from_rotvec(0.05 * rng.normal(size=(S, 3))).as_matrix() @ state.rotation,
+                       rng.normal(size=(S, 3)) * 1e-2, rng.normal(size=(S, 3)), 0.25)
+    energies = (kinetic_energy, potential_energy, spring_energy)
+    gaps = joint_gaps(model, state)
+    parts = [select_fibres(model, state, sel) for sel in ([0, 2], np.array([False, True, False]))]
+    np.testing.assert_allclose([sum(e(m, s) for m, s in parts) for e in energies],
+                               [e(model, state) for e in energies], rtol=1e-12)
+    assert spring_energy(model, state) > 0.0
+    assert all(s.time == 0.25 for _, s in parts)
+    assert parts[0][0].n_fibres == 2 and parts[1][0].n_segments == 2 and not parts[1][0].anchored[0]
+    np.testing.assert_allclose(np.sort(np.concatenate([joint_gaps(m, s) for m, s in parts])), np.sort(gaps))
+    assert gaps.max() > 1e-6  # the perturbation opened the joints: the comparison sees them
+    for bad in ([], [3], np.ones(2, bool)):
+        with pytest.raises(ParameterError):
+            select_fibres(model, state, bad)

@@ -150,6 +150,7 @@ from headsim.solvers.chains_model import (
     kinetic_energy,
     polylines_from_state,
     potential_energy,
+    select_fibres,
     spring_energy,
 )
 from headsim.solvers.chains_options import ChainOptions, StepStats
@@ -170,6 +171,7 @@ __all__ = [
     "potential_energy",
     "spring_energy",
     "joint_gaps",
+    "select_fibres",
 ]
 
 # A fibre pair is a contact row of the coupled solve from the start when its gap is within the contact band
