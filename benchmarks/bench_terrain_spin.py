@@ -39,6 +39,13 @@ segments 48–57 swing with the sign of their axial and transverse spin alternat
 kinetic energy of segments 46–59 rising 5–18 % per step (t = 0.070–0.073 s), by 10–16 % in each step's joint stage
 (Method I: from the start state's twists to the joint-corrected ones), the contact solves then adding or removing up
 to 10 %; their contact rows come and go (124–331 rows on segments 50–53 at t = 0.070 s, none on 53–57 at 0.073 s).
+
+Thirty-sixth session: the 30 fibres ``--fibres 300:330`` spin up the same way without the limit, in 0.2 s per step
+(fibre 328's segments 48–52: ω 464 → 4,070 rad/s in 12 steps, joint gaps 590 µm); the 10 fibres 320:330 up to 1,070
+rad/s. Fibre 328 alone, without obstacles, shows the joint stage's twist flipping sign and growing every step
+(−0.17, +0.32, −0.33, +0.57, −0.65 rad) and gains energy even from rest: the plain step's energy gain on a strongly
+bent, stiff chain (see ``tests/solvers/test_chains_stabilisation.py::test_the_plain_step_dissipates_a_released_coil``
+and ``ChainOptions.max_rotation_per_step`` for the refinement study).
 """
 
 from __future__ import annotations
