@@ -351,17 +351,22 @@ def test_the_plain_step_dissipates_a_released_coil():
     (``benchmarks/bench_terrain_spin.py --fibres 328:329``; bends of 0.35–0.5 rad per joint) without obstacles: with
     its saved velocities the twist of a joint flips sign and grows every step (−0.17, +0.32, −0.33, +0.57, −0.65
     rad), already in the joint stage's trial end (Method I); started at rest, +20 % energy in 8 steps (+16 % without
-    gravity). Unchanged with the
-    joint stage's Newton iteration converged (40 iterations), with one harmonisation pass, without
-    post-stabilisation, with the impulses' rotations mapped by the transposed left Jacobian J_l(Δt ω)ᵀ of the
+    gravity).
+
+    Unchanged with the joint stage's gap iteration run to 40 iterations, with one harmonisation pass, without
+    post-stabilisation, and with the impulses' rotations mapped by the transposed left Jacobian J_l(Δt ω)ᵀ of the
     step's rotation; worse with ``springs_in_first_half_step=False`` (9.5 × after 10 ms) and with the joint
-    impulses' levers taken at the end of the step (the start-frame chord Jacobian no longer converges); it
-    dissipates with the springs 10 times softer (smaller rotations per step) and with halved steps. A likely cause
-    (not proven): the joint impulses act on the start-of-step levers (eq. 8.72) while the gaps are closed at the
-    step's end, so they do work of second order in the step's rotation, of either sign, which at ≈ 1 rad per step
-    outweighs what the implicit springs dissipate. In a scene whose total energy falls (the terrain drape's landing)
-    the gain is local and the energy check cannot see it: that is the terrain spin-up that
-    ``max_rotation_per_step`` contains."""
+    impulses' levers taken at the end of the step (the start-frame chord matrix then no longer converges); it
+    dissipates with the springs 10 times softer (smaller rotations per step) and with halved steps.
+
+    The likely cause (not proven): the joint stage's spring rows are only linearly implicit. Its first Newton pass
+    solves them with the small-angle stiffness R_k K R_kᵀ of the start frames, and the later passes correct the
+    gaps alone (``correct_fibre_joints``). With 0.6 rad bends turning by ≈ 1 rad per step, that one linearisation is
+    far from the spring's tangent, and a linearly implicit step with such a matrix is not unconditionally stable.
+    Iterating the spring rows with the same chord matrix diverges (the coil at 7 ms), as the kernel's notes say;
+    a Newton with the exact tangent of J_l⁻ᵀ(θ) K (θ − θ°) through the step's rotation is the untried
+    remedy. In a scene whose total energy falls (the terrain drape's landing) the gain is local and the energy
+    check cannot see it: that is the terrain spin-up that ``max_rotation_per_step`` contains."""
     e, substeps = _released_coil(step_halvings=0)
     assert substeps == 20
     assert np.diff(e).max() <= 0.0
