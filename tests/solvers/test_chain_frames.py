@@ -208,6 +208,6 @@ def test_selected_fibres_carry_their_share_of_energy_and_joint_gaps():
     assert parts[0][0].n_fibres == 2 and parts[1][0].n_segments == 2 and not parts[1][0].anchored[0]
     np.testing.assert_allclose(np.sort(np.concatenate([joint_gaps(m, s) for m, s in parts])), np.sort(gaps))
     assert gaps.max() > 1e-6  # the perturbation opened the joints: the comparison sees them
-    for bad in ([], [3], np.ones(2, bool)):
+    for bad in ([], [3], [-1], [0.5], np.ones(2, bool)):
         with pytest.raises(ParameterError):
             select_fibres(model, state, bad)

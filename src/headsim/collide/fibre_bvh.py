@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from headsim._selection import index_selection
 from headsim.collide import _kernels_fibre as K
 from headsim.collide import _kernels_fibre_packed as P
 from headsim.collide import _kernels_fibre_traverse as T
@@ -630,16 +631,9 @@ def subset_contact_pairs(fibres: FibreSet, query) -> tuple[np.ndarray, np.ndarra
     from headsim.collide._kernels_fibre_subset import bin_query_boxes, compact_hits, subset_pairs
 
     S = fibres.n_segments
-    q = np.asarray(query)
-    if q.dtype == np.bool_:
-        if q.shape != (S,):
-            raise ParameterError(f"a query mask must have shape ({S},), got {q.shape}")
-        q = np.flatnonzero(q)
-    elif q.size and (q.ndim != 1 or not np.issubdtype(q.dtype, np.integer) or q.min() < 0 or q.max() >= S):
-        raise ParameterError(f"query must be segment indices in [0, {S}) or an ({S},) bool mask")
+    query_idx = index_selection(query, S, "query segment")
     is_query = np.zeros(S, np.bool_)
-    is_query[q] = True
-    query_idx = np.flatnonzero(is_query).astype(np.int64)
+    is_query[query_idx] = True
     if not len(query_idx):
         return np.zeros((0, 2), np.int64), np.zeros((0, 2))
     nodes, start, r = fibres.nodes, np.ascontiguousarray(fibres.segment_start), fibres.radius

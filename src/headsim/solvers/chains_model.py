@@ -9,6 +9,7 @@ from functools import cached_property
 
 import numpy as np
 
+from headsim._selection import index_selection
 from headsim.errors import DivergenceError, ParameterError
 from headsim.solvers._arrays import frozen_array
 from headsim.solvers._kernels import chains_frames as FK
@@ -175,21 +176,12 @@ def select_fibres(model: ChainModel, state: "ChainState", fibres) -> tuple[Chain
     """The model and state of the fibres ``fibres`` (indices or a boolean mask over the F fibres, kept in
     increasing order) alone: their segments, roots and springs, the same time. For diagnostics on a part of a
     large scene (e.g. the fibres around a local event of a saved state); the dropped fibres' contacts go with
-    them. ParameterError for an empty selection or an index outside 0 … F − 1."""
-    F = model.n_fibres
-    sel = np.asarray(fibres)
-    if sel.dtype == np.bool_:
-        if sel.shape != (F,):
-            raise ParameterError(f"a fibre mask must have {F} entries, got {sel.shape}")
-        sel = np.flatnonzero(sel)
-    sel = np.unique(sel.astype(np.int64))
+    them. ParameterError for an empty selection or an invalid one (:func:`headsim._selection.index_selection`)."""
+    sel = index_selection(fibres, model.n_fibres, "fibre")
     if not sel.size:
         raise ParameterError("select at least one fibre")
-    if sel[0] < 0 or sel[-1] >= F:
-        raise ParameterError(f"fibre indices must be within 0 … {F - 1}, got {sel[0]} … {sel[-1]}")
-    off = np.asarray(model.segment_offsets)
-    counts = np.diff(off)[sel]
-    seg = np.concatenate([np.arange(off[f], off[f + 1]) for f in sel])
+    counts = np.diff(model.segment_offsets)[sel]
+    seg = np.flatnonzero(np.isin(model.segment_fibre, sel))
     per_fibre = {"anchored", "root_point", "root_frame"}
     kw = {f.name: np.asarray(getattr(model, f.name))[sel if f.name in per_fibre else seg]
           for f in fields(model) if f.name != "segment_offsets"}

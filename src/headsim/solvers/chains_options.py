@@ -354,12 +354,12 @@ class ChainOptions:
         in 10 with ``springs_in_first_half_step=False``, so that option does not remove the cause); with this
         limit and the energy check it loses 41 % (``tests/solvers/test_chains_stabilisation.py``, whose strict
         xfail lists what did not change it and the likely cause: the joint stage's spring rows are linearly
-        implicit, solved once with the small-angle stiffness of the start frames). Refinement on the 30 fibres 300–330 of the terrain state (``--fibres
-        300:330``, 30 steps from t = 69 ms; limit 0.5 / 0.25 / 0.1 rad): largest transverse spin per step 142–510 /
-        117–290 / 139–438 rad/s (off: up to 1,544, and 4,070 rad/s in all at the 12th step), joint gaps ≤ 25.9 /
-        6.5 / 1.1 µm, total energy after the 30 steps 8.49 / 8.59 / 8.67e-5 J, 51 / 89 / 204 solver steps (6.7 /
-        12.3 / 33.8 s): the landing converges as the limit is refined; 0.5 rad is the cheapest of the three and
-        stays the default.
+        implicit, solved once with the small-angle stiffness of the start frames). Refinement on the 30 fibres
+        300–330 of the terrain state (``--fibres 300:330``, 30 steps from t = 69 ms; limit 0.5 / 0.25 / 0.1 rad):
+        largest transverse spin per step 142–510 / 117–290 / 139–438 rad/s (off: up to 1,544, and 4,070 rad/s in all
+        at the 12th step), joint gaps ≤ 25.9 / 6.5 / 1.1 µm, total energy after the 30 steps 8.49 / 8.59 / 8.67e-5
+        J, 51 / 89 / 204 solver steps (6.7 / 12.3 / 33.8 s): the landing converges as the limit is refined; 0.5 rad
+        is the cheapest of the three and stays the default.
     close_joint_gaps : coupled mode with ``end_velocity_positions`` and ``split_recovery``, default True: the split
         push-out of the last pass also closes the joint gaps d^i (t_i) of the fibres with contact rows, its joint
         rows asking for −d^i/Δt where ‖d^i‖ exceeds ``push_out_slop`` × the radius (and the push-out runs for them
