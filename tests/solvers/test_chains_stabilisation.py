@@ -359,18 +359,20 @@ def test_the_plain_step_dissipates_a_released_coil():
     impulses' levers taken at the end of the step (the start-frame chord matrix then no longer converges); it
     dissipates with the springs 10 times softer (smaller rotations per step) and with halved steps.
 
-    The likely cause (not proven): the joint stage's spring rows are only linearly implicit. Its first Newton pass
-    solves them with the small-angle stiffness R_k K R_kᵀ of the start frames, and the later passes correct the
-    gaps alone (``correct_fibre_joints``). With 0.6 rad bends turning by ≈ 1 rad per step, that one linearisation is
-    far from the spring's tangent, and a linearly implicit step with such a matrix is not unconditionally stable.
-    Iterating the spring rows with the same chord matrix diverges (the coil at 7 ms), as the kernel's notes say;
-    a Newton with the exact tangent of J_l⁻ᵀ(θ) K (θ − θ°) through the step's rotation is the remedy to try.
-    Tried and not kept: a full Newton whose spring block is the central-difference tangent of that moment in the
-    k frame, without the k frame's own turn and the step's dexp: on a 50 mm coil 8–9 iterations and the energies
-    of the linearly implicit step to 4 digits; at 15 mm the 32-iteration cap, energies unchanged; at 5 mm no
-    convergence, joint gaps of millimetres. In a scene whose total energy falls (the terrain drape's landing) the
-    gain is local and the energy check cannot see it: that is the terrain spin-up that ``max_rotation_per_step``
-    contains."""
+    The cause is not the spring rows' linearisation (the suspect until the thirty-seventh session: the joint
+    stage's first Newton pass solves them once with the small-angle stiffness R_k K R_kᵀ of the start frames, and
+    the later passes correct the gaps alone). ``benchmarks/bench_joint_stage_root.py`` solves the joint stage to
+    the root of its own trial residual (gaps and implicit springs, Newton on a finite-difference Jacobian with a line
+    search): on this coil at 1 ms the energy rises already in the second step with the root found (0.910 → 0.922 →
+    1.010), and no root is found from the fourth step; at 0.5 ms every root is found and the energy rises in 14 of
+    40 steps (the linearly implicit step: 1 of 40), at 0.25 ms in 11 of 80 (0 of 80); on 15 and 50 mm coils the two
+    agree to 3 digits and dissipate. So the stage's time discretisation itself (impulses at the start-of-step levers,
+    the exp-map rotation with the start inertia, springs at the end frames) is not energy-stable at ≈ 1 rad per
+    step; a remedy needs another discretisation of it (e.g. a discrete-gradient or variational Lie-group step).
+    Tried before and not kept: a Newton whose spring block is the central-difference tangent of J_l⁻ᵀ(θ) K (θ − θ°)
+    in the k frame alone (same energies on a 50 mm coil, no convergence at 5 mm). In a scene whose total energy
+    falls (the terrain drape's landing) the gain is local and the energy check cannot see it: that is the terrain
+    spin-up that ``max_rotation_per_step`` contains."""
     e, substeps = _released_coil(step_halvings=0)
     assert substeps == 20
     assert np.diff(e).max() <= 0.0

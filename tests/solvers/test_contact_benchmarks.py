@@ -1,5 +1,6 @@
 """The chain-solver benchmarks run (issue 10): the replay of captured coupled contact solves, the exact final
-solve's comparison, the root-region experiment, the drape benchmark's saved states and the terrain spin diagnostic.
+solve's comparison, the root-region experiment, the drape benchmark's saved states, the terrain spin diagnostic and
+the joint stage's root diagnostic.
 
 ``benchmarks/bench_contact_convergence.py`` (and ``bench_contact_domains.py``, which reads the captured calls
 through the same ``iterate_args``) rerun :func:`headsim.solvers._kernels.chains_coupled.coupled_iterate` from
@@ -135,3 +136,24 @@ def test_terrain_spin_diagnostic_loads_its_state_and_steps():
     bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_terrain_spin.py"), "--fibres", "350:360"],
                          capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert bad.returncode == 2 and "fibre indices must be within 0 … 354" in bad.stderr, bad.stderr[-2000:]
+
+
+def test_joint_stage_root_diagnostic_solves_the_trial_residual_to_its_root():
+    """``benchmarks/bench_joint_stage_root.py`` (issue 10: the released coil with Method I's joint stage linearly
+    implicit and solved to its nonlinear root) runs 3 steps of 1 ms: both runs print finite energies at each
+    millisecond, starting from 1, and the root run's 6 joint solves (2 harmonisation passes per step) converge, so
+    its energies are those of the exact root (the script's finding rests on that); bad arguments exit with 2."""
+    script = str(ROOT / "benchmarks" / "bench_joint_stage_root.py")
+    out = subprocess.run([sys.executable, script, "--dt-ms", "1", "--duration-ms", "3"], capture_output=True,
+                         text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("released coil: 30 × 3 mm, radius 5 mm, 3 ms, plain step"), out.stdout
+    runs = dict(re.findall(r"^Δt 1 ms (linear|root)\s*: energy/start per ms ([^;]+);", out.stdout, re.M))
+    assert set(runs) == {"linear", "root"}, out.stdout
+    for energies in runs.values():
+        e = [float(v) for v in energies.split()]
+        assert len(e) == 4 and e[0] == 1.0 and np.isfinite(e).all()
+    assert re.search(r"root solves 6, not converged 0;", out.stdout), out.stdout
+    bad = subprocess.run([sys.executable, script, "--dt-ms", "0"], capture_output=True, text=True, timeout=600,
+                         cwd=ROOT)
+    assert bad.returncode == 2 and "must be positive" in bad.stderr, bad.stderr[-2000:]
