@@ -359,20 +359,22 @@ def test_the_plain_step_dissipates_a_released_coil():
     impulses' levers taken at the end of the step (the start-frame chord matrix then no longer converges); it
     dissipates with the springs 10 times softer (smaller rotations per step) and with halved steps.
 
-    The cause is not the spring rows' linearisation (the suspect until the thirty-seventh session: the joint
-    stage's first Newton pass solves them once with the small-angle stiffness R_k K R_kᵀ of the start frames, and
-    the later passes correct the gaps alone). ``benchmarks/bench_joint_stage_root.py`` solves the joint stage to
-    the root of its own trial residual (gaps and implicit springs, Newton on a finite-difference Jacobian with a line
-    search): on this coil at 1 ms the energy rises already in the second step with the root found (0.910 → 0.922 →
-    1.010), and no root is found from the fourth step; at 0.5 ms every root is found and the energy rises in 14 of
-    40 steps (the linearly implicit step: 1 of 40), at 0.25 ms in 11 of 80 (0 of 80); on 15 and 50 mm coils the two
-    agree to 3 digits and dissipate. So the stage's time discretisation itself (impulses at the start-of-step levers,
-    the exp-map rotation with the start inertia, springs at the end frames) is not energy-stable at ≈ 1 rad per
-    step; a remedy needs another discretisation of it (e.g. a discrete-gradient or variational Lie-group step).
-    Tried before and not kept: a Newton whose spring block is the central-difference tangent of J_l⁻ᵀ(θ) K (θ − θ°)
-    in the k frame alone (same energies on a 50 mm coil, no convergence at 5 mm). In a scene whose total energy
-    falls (the terrain drape's landing) the gain is local and the energy check cannot see it: that is the terrain
-    spin-up that ``max_rotation_per_step`` contains."""
+    The cause (thirty-seventh session, ``benchmarks/bench_joint_stage_root.py``, which solves the joint stage's own
+    equations to their root on this coil): not the spring rows' linearisation (the suspect before: the first Newton
+    pass solves them once with the small-angle stiffness R_k K R_kᵀ of the start frames, the later passes correct
+    the gaps alone). Solved exactly, the stage gains energy too, and more often: at 1 ms from the second step
+    (0.910 → 0.922 → 1.010, every root found), no root from the fourth; at 0.5 ms in 14 of 40 steps with every root
+    found (the linearly implicit step: 1 of 40). The source is the work of the joint impulses, applied at the
+    start-of-step levers while the gap they close moves with the rotated ones. With the impulses at the levers
+    averaged over each body's rotation of the step, J_l(Δt ω') r (then the end gap is exactly Δt times the joint's
+    relative velocity at them, and the impulses do no work on the end velocities), the exact root lost energy in
+    every step: 0.344 × after 20 ms at 1 ms, 0.419 × at 0.5 ms, and the 3 mm coil 0.107 × at 0.5 ms (its start
+    levers: no root from the second step). At 1 ms on the 3 mm coil no root was found with either. Not yet in the
+    solver: the kernel eliminates the twists per body, and with mean levers each body's twist is the root of its own
+    nonlinear equation with spurious branches at ≈ 1 rad per step (tried, the outer Newton stalled); the twists
+    must join the impulses as Newton unknowns. In a scene whose total energy falls (the terrain drape's landing)
+    the gain is local and the energy check cannot see it: that is the terrain spin-up that
+    ``max_rotation_per_step`` contains."""
     e, substeps = _released_coil(step_halvings=0)
     assert substeps == 20
     assert np.diff(e).max() <= 0.0

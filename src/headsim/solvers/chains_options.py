@@ -353,11 +353,11 @@ class ChainOptions:
         even from rest, and a released 5 mm coil of 3 mm segments gains 8.7 × its energy in 20 plain steps (9.5 ×
         in 10 with ``springs_in_first_half_step=False``, so that option does not remove the cause); with this
         limit and the energy check it loses 41 % (``tests/solvers/test_chains_stabilisation.py``, whose strict
-        xfail lists what did not change it). Thirty-seventh session: not the spring rows' linearisation either:
-        the joint stage solved to the root of its own trial residual gains energy too, and more often
-        (``benchmarks/bench_joint_stage_root.py``: at 0.5 ms in 14 of 40 steps with every root found, against 1
-        of 40 for the linearly implicit step); the stage's time discretisation is not energy-stable at ≈ 1 rad
-        per step, so this limit, which resolves such motion, is the remedy in place. Refinement on the 30 fibres
+        xfail lists what did not change it). Thirty-seventh session (``benchmarks/bench_joint_stage_root.py``): not
+        the spring rows' linearisation either (the joint stage solved to its root gains energy too, and more often)
+        but the work of the joint impulses at the start-of-step levers; at the levers averaged over each body's
+        rotation, J_l(Δt ω') r, the exact root dissipated in every step. Until the solver has that, this limit,
+        which resolves such motion, is the remedy in place. Refinement on the 30 fibres
         300–330 of the terrain state (``--fibres 300:330``, 30 steps from t = 69 ms; limit 0.5 / 0.25 / 0.1 rad):
         largest transverse spin per step 142–510 / 117–290 / 139–438 rad/s (off: up to 1,544, and 4,070 rad/s in all
         at the 12th step), joint gaps ≤ 25.9 / 6.5 / 1.1 µm, total energy after the 30 steps 8.49 / 8.59 / 8.67e-5
