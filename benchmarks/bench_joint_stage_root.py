@@ -49,11 +49,13 @@ start-of-step levers while the gap they close moves with the rotated ones. With 
 was found lost energy, at every step size measured. Where no root is found (3 mm at 1 ms: 1 rad of bending per
 joint turning by ≈ 1 rad per step) neither lever choice helps; the step control does (halving).
 
-Not yet in the solver: in the kernel's impulse-only Newton (twists eliminated per body) the mean levers make each
-body's twist the root of its own nonlinear equation, which has spurious branches at ≈ 1 rad per step (a per-body
-Newton found twists of 7 rad per step there and the outer iteration stalled; thirty-seventh session, not kept): the
-twists need to be Newton unknowns with the impulses, as here, and the chord matrix of ``correct_fibre_joints`` the
-mean levers' Jacobian.
+Not yet in the solver; two ways into ``correct_fibre_joints`` were tried and not kept (thirty-seventh session, 5 mm
+coil at 1 ms): (1) each body's twist solved for its mean levers inside the trial integration (the kernel eliminates
+the twists per body): that equation has spurious branches at ≈ 1 rad per step (a per-body Newton found twists of
+7 rad per step) and the impulse Newton stalled; (2) the levers lagged one iteration behind the twists, with the
+start levers' chord matrix and the springs' single linear solve: 41 × the energy after the first step (8
+iterations), 400 × with 40. The twists need to be Newton unknowns with the impulses, as here, with a Jacobian of
+the mean levers and the springs solved to the root, not once.
 """
 
 from __future__ import annotations

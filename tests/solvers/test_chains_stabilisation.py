@@ -370,9 +370,9 @@ def test_the_plain_step_dissipates_a_released_coil():
     relative velocity at them, and the impulses do no work on the end velocities), the exact root lost energy in
     every step: 0.344 × after 20 ms at 1 ms, 0.419 × at 0.5 ms, and the 3 mm coil 0.107 × at 0.5 ms (its start
     levers: no root from the second step). At 1 ms on the 3 mm coil no root was found with either. Not yet in the
-    solver: the kernel eliminates the twists per body, and with mean levers each body's twist is the root of its own
-    nonlinear equation with spurious branches at ≈ 1 rad per step (tried, the outer Newton stalled); the twists
-    must join the impulses as Newton unknowns. In a scene whose total energy falls (the terrain drape's landing)
+    solver: two ways into the kernel's Newton failed (the script's notes: per-body twist roots with spurious
+    branches; levers lagged one iteration with the start levers' chord matrix, 41 × the energy in one step); the
+    twists must join the impulses as Newton unknowns, with the springs solved to the root. In a scene whose total energy falls (the terrain drape's landing)
     the gain is local and the energy check cannot see it: that is the terrain spin-up that
     ``max_rotation_per_step`` contains."""
     e, substeps = _released_coil(step_halvings=0)
