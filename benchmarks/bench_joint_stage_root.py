@@ -49,13 +49,15 @@ start-of-step levers while the gap they close moves with the rotated ones. With 
 was found lost energy, at every step size measured. Where no root is found (3 mm at 1 ms: 1 rad of bending per
 joint turning by ≈ 1 rad per step) neither lever choice helps; the step control does (halving).
 
-Not yet in the solver; two ways into ``correct_fibre_joints`` were tried and not kept (thirty-seventh session, 5 mm
-coil at 1 ms): (1) each body's twist solved for its mean levers inside the trial integration (the kernel eliminates
-the twists per body): that equation has spurious branches at ≈ 1 rad per step (a per-body Newton found twists of
-7 rad per step) and the impulse Newton stalled; (2) the levers lagged one iteration behind the twists, with the
-start levers' chord matrix and the springs' single linear solve: 41 × the energy after the first step (8
-iterations), 400 × with 40. The twists need to be Newton unknowns with the impulses, as here, with a Jacobian of
-the mean levers and the springs solved to the root, not once.
+In the solver since the same session: ``ChainOptions.joint_levers = "mean"``
+(:mod:`headsim.solvers._kernels.chains_mean`, the same equations as :class:`JointStage` with the mean levers, checked
+by a test, solved the same way in Numba); its plain steps on the 5 mm coil at 1 ms give this table's mean-lever
+column (0.344 × after 20 ms). Two ways into the existing ``correct_fibre_joints`` failed first (5 mm coil at 1 ms):
+(1) each body's twist solved for its mean levers inside the trial integration (the kernel eliminates the twists
+per body): that equation has spurious branches at ≈ 1 rad per step (a per-body Newton found twists of 7 rad per
+step) and the impulse Newton stalled; (2) the levers lagged one iteration behind the twists, with the start levers'
+chord matrix and the springs' single linear solve: 41 × the energy after the first step (8 iterations), 400 × with
+40. The twists had to be Newton unknowns with the impulses, and the springs solved to the root.
 """
 
 from __future__ import annotations

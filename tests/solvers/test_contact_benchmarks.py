@@ -185,6 +185,45 @@ def test_joint_stage_diagnostic_has_the_kernels_equations():
         assert np.abs(r[:, 2:]).max() > 1e-3 * scale  # not trivially zero
 
 
+def test_mean_lever_kernel_has_the_diagnostics_equations():
+    """The solver's joint stage with ``joint_levers`` = "mean" (``_kernels.chains_mean.mean_lever_residual``) and the
+    diagnostic's ``JointStage(levers="mean")`` (NumPy, Rotation) are the same equations, rows scaled alike: at
+    random twists and impulses of the moving 5 mm coil (turning up to ≈ 0.5 rad in the step) the residuals agree to
+    round-off, for the anchored chain and with the first body's joint dropped (a free root: there the kernel pins
+    the missing joint's impulse to 0, rows 6:12 = P)."""
+    from headsim.solvers._kernels import chains_mean as KM
+    from headsim.solvers.chains_model import ChainState
+
+    B = _joint_stage_module()
+    model, rest = B.released_coil(5e-3)
+    rng = np.random.default_rng(11)
+    n, dt = model.n_segments, 1e-3
+    state = ChainState(rest.position, rest.rotation, rng.normal(0, 0.05, (n, 3)), rng.normal(0, 300.0, (n, 3)))
+    m, inertia = model.mass[0], model.inertia[0, 0]
+    z = np.concatenate([state.velocity + rng.normal(0, 0.01, (n, 3)), state.angular_velocity
+                        + rng.normal(0, 100.0, (n, 3)), rng.normal(0, 0.05 * m, (n, 3)),
+                        rng.normal(0, 100.0 * inertia, (n, 3))], axis=1)
+    zero = np.zeros((n, 3))
+    out = np.zeros((n, 12))
+    for anchored in (True, False):
+        j0 = 0 if anchored else 1
+        KM.mean_lever_residual(0, n, j0, z, state.position, state.rotation, state.velocity, state.angular_velocity,
+                               model.mass, model.inertia, model.half_length, model.root_point, model.root_frame, 0,
+                               dt, np.zeros(3), zero, zero, model.joint_stiffness, model.rest_rotation,
+                               model.joint_damping, np.zeros((n, 3)), np.zeros((n, 3, 3)), out)
+        ref = B.JointStage(model, state, "mean").residual(z, dt).reshape(n, 12)
+        scale = np.abs(ref).max()
+        if anchored:
+            np.testing.assert_allclose(out, ref, rtol=0, atol=1e-10 * scale)
+        else:  # body 0 without its root joint: its impulse rows are P, and no impulse of joint 0 acts on it
+            zf = z.copy()
+            zf[0, 6:] = 0.0
+            ref = B.JointStage(model, state, "mean").residual(zf, dt).reshape(n, 12)
+            np.testing.assert_allclose(out[1:], ref[1:], rtol=0, atol=1e-10 * scale)
+            np.testing.assert_allclose(out[0, :6], ref[0, :6], rtol=0, atol=1e-10 * scale)
+            np.testing.assert_array_equal(out[0, 6:], z[0, 6:])
+
+
 def test_joint_stage_root_diagnostic_runs_and_its_roots_converge():
     """``benchmarks/bench_joint_stage_root.py`` (issue 10: the released coil with the solver's plain step and with
     Method I's joint stage solved to its root, with the start and with the mean levers) runs 3 steps of 1 ms: every

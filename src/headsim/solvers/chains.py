@@ -131,6 +131,7 @@ from headsim.errors import DivergenceError, ParameterError
 from headsim.solvers._kernels import chains as K
 from headsim.solvers._kernels import chains_coupled as KC
 from headsim.solvers._kernels import chains_frames as FK
+from headsim.solvers._kernels import chains_mean as KM
 from headsim.solvers._kernels import chains_pairs as KP
 from headsim.solvers.chain_band import LocalMotionBound
 from headsim.solvers.chains_exact import EXACT_MAX_DOF, _exact_final_solve, _penetrating_fibre_rows
@@ -154,6 +155,8 @@ from headsim.solvers.chains_model import (
     spring_energy,
 )
 from headsim.solvers.chains_options import ChainOptions, StepStats
+
+MEAN_LEVER_ITERATIONS = 40  # Newton iterations of a fibre's joint solve with joint_levers="mean"
 
 __all__ = [
     "FrictionLaw",
@@ -322,7 +325,7 @@ def _merged_stats(first: StepStats, second: StepStats) -> StepStats:
     for name in ("newton_iterations", "qp_sweeps", "qp_residual", "max_penetration"):
         setattr(out, name, max(getattr(first, name), getattr(second, name)))
     for name in ("qp_capped", "exact_solves", "candidate_redos", "band_extensions", "reserve_resolves",
-                 "promoted_rows", "substeps"):
+                 "promoted_rows", "substeps", "joint_root_failures"):
         setattr(out, name, getattr(first, name) + getattr(second, name))
     out.energy_bound = first.energy_bound + second.energy_bound
     return out
@@ -474,6 +477,7 @@ class ChainSolver:
         self._det_buffers = None  # work arrays of the fused detection pass (see _detection_buffers)
         self._rows_buf = None  # its output rows (see _row_buffers)
         self._joint_factor_buf = None  # the joint stage's Newton factors (see _joints)
+        self._mean_lever_failures = 0  # joint_levers="mean": this step's fibre joint solves that did not converge
         self._unsprung_factor_buf = None  # … of the spring-free joint stage (springs_in_first_half_step=False)
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
@@ -529,6 +533,13 @@ class ChainSolver:
             K.correct_joints_batch(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
         else:
             K.correct_joints_serial(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
+        if o.joint_levers == "mean":  # from the start levers' twists, solved again with the mean levers
+            ok = np.zeros(F, np.bool_)
+            large = model.n_segments >= o.parallel_threshold
+            kern = KM.solve_mean_levers_batch if large else KM.solve_mean_levers_serial
+            kern(np.arange(F, dtype=np.int64), *args[:-2], float(o.joint_tolerance), MEAN_LEVER_ITERATIONS, v_out,
+                 w_out, its, ok)
+            self._mean_lever_failures += int(F - ok.sum())
         return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
 
     # -- detection ---------------------------------------------------------------------------------
@@ -1680,6 +1691,7 @@ class ChainSolver:
         row_vn = KP.row_normal_velocity_parallel if S >= o.parallel_threshold else KP.row_normal_velocity
         self._qp_capped = 0
         self._qp_residual = 0.0
+        self._mean_lever_failures = 0
         self._continued = 0
         self._reserve_moved = 0
         self._band_extensions = 0
@@ -1987,6 +1999,7 @@ class ChainSolver:
         new = ChainState(x_new, R_new, v_new, w_new, state.time + dt)
         st = StepStats(time=new.time, seconds=secs, newton_iterations=newton, qp_sweeps=sweeps_max,
                        qp_capped=self._qp_capped, qp_residual=self._qp_residual,
+                       joint_root_failures=self._mean_lever_failures,
                        harmonisation_iterations=o.harmonisation_iterations,
                        energy_bound=float("nan") if self._bound is None else self._bound, exact_solves=self._continued)
         _record_energies(st, model, new, g)

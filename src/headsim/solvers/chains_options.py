@@ -25,6 +25,27 @@ class ChainOptions:
     harmonisation_iterations : joints → contacts passes per step (1–3 in the seed).
     contact_sweeps : per-body projection passes (≥ 2: later passes use the partners' current velocity).
     joint_tolerance : m, Newton stop on the max joint gap of the trial state; max_newton : iterations.
+    joint_levers : ``"start"`` (default; eq. 8.72: the joint stage applies each joint impulse at the levers ±h R e₃
+        of the start of the step, its spring rows linearly implicit) or ``"mean"``: each impulse at the lever
+        averaged over its body's rotation φ of the step, J_l(φ) r (J_l the left Jacobian of SO(3)), so that the
+        end-of-step gap is exactly Δt times the joint's relative velocity at it and the impulses do no work on the
+        end velocities; the twists and impulses of every fibre are then solved together to the root of the stage's
+        equations (:mod:`headsim.solvers._kernels.chains_mean`: Newton with a coloured finite-difference Jacobian,
+        up to 40 iterations from the start-of-step twists; a fibre whose Newton does not converge keeps the start
+        levers' answer, counted in :attr:`StepStats.joint_root_failures`). Issue 10's thirty-seventh session
+        (``benchmarks/bench_joint_stage_root.py``): the start levers' impulses did the work that made the plain
+        step gain energy on strongly bent, stiff fibres turning ≈ 1 rad per step (the released coil, 8.7 × its
+        energy in 20 ms); with ``"mean"`` the same plain steps lose energy in every step (0.344 × after 20 ms,
+        3–6 Newton iterations, joint gaps ≤ 0.05 nm; the 3 mm coil at 0.5 ms: 0.107 ×, where the start levers give
+        3.8 ×). Where no root is found (the 3 mm coil at 1 ms: 1 rad of bending per joint) the step control
+        (``step_halvings``) still acts. Cost: the coil's steps 0.55 → 2.5 ms; 30 fibres of the terrain drape 0.2 →
+        0.3 s per step; the reference scene (355 × 100 at rest, 5 steps) 1.58 → 3.28 s per step, the same joint gaps
+        and energies: not the default (the finite-difference Jacobian's 72 residual passes per Newton iteration are
+        the cost; an analytic one is the way to make it cheap). On the terrain subset (fibres 300–330 from t = 69 ms, no
+        ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does
+        not occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the
+        limit: to 731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19),
+        whether landing or a remaining spin-up is not resolved: the limit stays on with either lever choice.
     qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s) of the per-body
         projection; ``qp_iterations`` is also the sweep cap of the coupled solve (see ``contact_tolerance``).
         Default 30 (60 before ``contact_acceleration``): with the Nesterov extrapolation 30 sweeps leave the
@@ -356,8 +377,8 @@ class ChainOptions:
         xfail lists what did not change it). Thirty-seventh session (``benchmarks/bench_joint_stage_root.py``): not
         the spring rows' linearisation either (the joint stage solved to its root gains energy too, and more often)
         but the work of the joint impulses at the start-of-step levers; at the levers averaged over each body's
-        rotation, J_l(Δt ω') r, the exact root dissipated in every step. Until the solver has that, this limit,
-        which resolves such motion, is the remedy in place. Refinement on the 30 fibres
+        rotation, J_l(Δt ω') r, the exact root dissipated in every step: ``joint_levers="mean"`` (not the
+        default, see there; with it this limit stays on). Refinement on the 30 fibres
         300–330 of the terrain state (``--fibres 300:330``, 30 steps from t = 69 ms; limit 0.5 / 0.25 / 0.1 rad):
         largest transverse spin per step 142–510 / 117–290 / 139–438 rad/s (off: up to 1,544, and 4,070 rad/s in all
         at the 12th step), joint gaps ≤ 25.9 / 6.5 / 1.1 µm, total energy after the 30 steps 8.49 / 8.59 / 8.67e-5
@@ -664,6 +685,7 @@ class ChainOptions:
     contact_sweeps: int = 2
     joint_tolerance: float = 1e-9
     max_newton: int = 8
+    joint_levers: str = "start"
     qp_iterations: int = 30
     qp_tolerance: float = 1e-9
     contact_band: float = 0.5
@@ -714,6 +736,8 @@ class ChainOptions:
             raise ParameterError(f"restitution must be in [0, 1], got {self.restitution}")
         if self.friction_objective not in ("qp", "lp"):
             raise ParameterError("friction_objective must be 'qp' or 'lp'")
+        if self.joint_levers not in ("mean", "start"):
+            raise ParameterError(f"joint_levers must be 'mean' or 'start', got {self.joint_levers!r}")
         if self.normal_impulse not in ("dual", "projected"):
             raise ParameterError("normal_impulse must be 'dual' or 'projected'")
         if self.external_impulse not in ("full", "half"):
@@ -783,6 +807,7 @@ class StepStats:
     fibre_contacts: int = 0
     obstacle_contacts: int = 0
     newton_iterations: int = 0
+    joint_root_failures: int = 0  # joint_levers="mean": fibre joint solves of the step whose Newton did not converge
     qp_sweeps: int = 0
     qp_capped: int = 0  # coupled mode: contact solves of the step that hit the sweep cap (qp_iterations); a solve
     # whose answer the exact final solve replaced does not count (nor its residual in qp_residual)
