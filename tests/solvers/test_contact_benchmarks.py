@@ -147,6 +147,18 @@ def _joint_stage_module():
     return bench_joint_stage_root
 
 
+def _moving_coil(B, seed):
+    """The 5 mm released coil of ``bench_joint_stage_root`` (module B) with random twists (0.05 m/s, 300 rad/s):
+    (model, state, the generator for more random numbers)."""
+    from headsim.solvers.chains_model import ChainState
+
+    model, rest = B.released_coil(5e-3)
+    rng = np.random.default_rng(seed)
+    n = model.n_segments
+    state = ChainState(rest.position, rest.rotation, rng.normal(0, 0.05, (n, 3)), rng.normal(0, 300.0, (n, 3)))
+    return model, state, rng
+
+
 def test_joint_stage_diagnostic_has_the_kernels_equations():
     """``bench_joint_stage_root.JointStage`` with the start levers is Method I's joint stage as the solver's kernel
     has it: for a moving, bent chain (the 5 mm released coil with random twists) and random joint impulses P, the
@@ -155,13 +167,10 @@ def test_joint_stage_diagnostic_has_the_kernels_equations():
     gaps × m/Δt, springs / h), to round-off. With the mean levers the body rows no longer vanish there (the
     impulses' moment changes)."""
     from headsim.solvers._kernels import chains as K
-    from headsim.solvers.chains_model import ChainState
 
     B = _joint_stage_module()
-    model, rest = B.released_coil(5e-3)
-    rng = np.random.default_rng(7)
+    model, state, rng = _moving_coil(B, 7)
     n, dt = model.n_segments, 1e-3
-    state = ChainState(rest.position, rest.rotation, rng.normal(0, 0.05, (n, 3)), rng.normal(0, 300.0, (n, 3)))
     m, inertia = model.mass[0], model.inertia[0, 0]
     P = np.concatenate([rng.normal(0, 0.05 * m, (n, 3)), rng.normal(0, 100.0 * inertia, (n, 3))], axis=1)
     res, x_end, R_end, w_new = np.zeros((n, 6)), np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros((n, 3))
@@ -192,13 +201,10 @@ def test_mean_lever_kernel_has_the_diagnostics_equations():
     round-off, for the anchored chain and with the first body's joint dropped (a free root: there the kernel pins
     the missing joint's impulse to 0, rows 6:12 = P)."""
     from headsim.solvers._kernels import chains_mean as KM
-    from headsim.solvers.chains_model import ChainState
 
     B = _joint_stage_module()
-    model, rest = B.released_coil(5e-3)
-    rng = np.random.default_rng(11)
+    model, state, rng = _moving_coil(B, 11)
     n, dt = model.n_segments, 1e-3
-    state = ChainState(rest.position, rest.rotation, rng.normal(0, 0.05, (n, 3)), rng.normal(0, 300.0, (n, 3)))
     m, inertia = model.mass[0], model.inertia[0, 0]
     z = np.concatenate([state.velocity + rng.normal(0, 0.01, (n, 3)), state.angular_velocity
                         + rng.normal(0, 100.0, (n, 3)), rng.normal(0, 0.05 * m, (n, 3)),

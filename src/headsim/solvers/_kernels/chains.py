@@ -274,6 +274,39 @@ def _spring_moment(t0, t1, t2, e0, e1, e2):
     return e0 + 0.5 * a0 + c * b0, e1 + 0.5 * a1 + c * b1, e2 + 0.5 * a2 + c * b2
 
 
+@njit(cache=True, inline="always")
+def _joint_gap_and_moment(b, s, f, x_end, R_end, half, root_point, root_frame, K, rest, damping, twists, col, Q):
+    """Joint b's (segment s, fibre f) end-of-step gap d (eq. 8.76; m) and spring moment (world, N m: R_k J_l⁻ᵀ(θ)
+    K (θ − θ°) + c ω_rel, θ = log(R_kᵀ R_l) at the end frames, §8.5.3), from the bodies' end positions x_end and
+    frames R_end (local rows b − 1, b; the root anchor for b = 0) and their angular velocities twists[:, col:col + 3]
+    (rad/s). Q (3, 3): a work array. Returns (d0, d1, d2, m0, m1, m2)."""
+    hl = half[s]
+    if b == 0:
+        Rk = root_frame[f]
+        d0 = root_point[f, 0] - (x_end[b, 0] - hl * R_end[b, 0, 2])
+        d1 = root_point[f, 1] - (x_end[b, 1] - hl * R_end[b, 1, 2])
+        d2 = root_point[f, 2] - (x_end[b, 2] - hl * R_end[b, 2, 2])
+        wk0, wk1, wk2 = 0.0, 0.0, 0.0
+    else:
+        Rk = R_end[b - 1]
+        hk = half[s - 1]
+        d0 = x_end[b - 1, 0] + hk * Rk[0, 2] - (x_end[b, 0] - hl * R_end[b, 0, 2])
+        d1 = x_end[b - 1, 1] + hk * Rk[1, 2] - (x_end[b, 1] - hl * R_end[b, 1, 2])
+        d2 = x_end[b - 1, 2] + hk * Rk[2, 2] - (x_end[b, 2] - hl * R_end[b, 2, 2])
+        wk0, wk1, wk2 = twists[b - 1, col], twists[b - 1, col + 1], twists[b - 1, col + 2]
+    for r in range(3):
+        for c in range(3):
+            Q[r, c] = Rk[0, r] * R_end[b, 0, c] + Rk[1, r] * R_end[b, 1, c] + Rk[2, r] * R_end[b, 2, c]
+    th0, th1, th2 = _log_so3_parts(Q)
+    e0, e1, e2 = _spring_moment(th0, th1, th2, K[s, 0] * (th0 - rest[s, 0]), K[s, 1] * (th1 - rest[s, 1]),
+                                K[s, 2] * (th2 - rest[s, 2]))
+    c_d = damping[s]
+    m0 = Rk[0, 0] * e0 + Rk[0, 1] * e1 + Rk[0, 2] * e2 + c_d * (twists[b, col] - wk0)
+    m1 = Rk[1, 0] * e0 + Rk[1, 1] * e1 + Rk[1, 2] * e2 + c_d * (twists[b, col + 1] - wk1)
+    m2 = Rk[2, 0] * e0 + Rk[2, 1] * e1 + Rk[2, 2] * e2 + c_d * (twists[b, col + 2] - wk2)
+    return d0, d1, d2, m0, m1, m2
+
+
 @njit(cache=True)
 def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root_frame, f,
                  dt, gravity, dx_extra, dth_extra, K, rest, damping, res, x_end, R_end, w_new):
@@ -304,30 +337,8 @@ def _fibre_trial(s0, n, j0, P, x, R, v, w, mass, inertia, half, root_point, root
     for jj in range(nj):
         b = jj + j0
         s = s0 + b
-        hl = half[s]
-        if b == 0:
-            Rk = root_frame[f]
-            d0 = root_point[f, 0] - (x_end[b, 0] - hl * R_end[b, 0, 2])
-            d1 = root_point[f, 1] - (x_end[b, 1] - hl * R_end[b, 1, 2])
-            d2 = root_point[f, 2] - (x_end[b, 2] - hl * R_end[b, 2, 2])
-            wk0, wk1, wk2 = 0.0, 0.0, 0.0
-        else:
-            Rk = R_end[b - 1]
-            hk = half[s - 1]
-            d0 = x_end[b - 1, 0] + hk * Rk[0, 2] - (x_end[b, 0] - hl * R_end[b, 0, 2])
-            d1 = x_end[b - 1, 1] + hk * Rk[1, 2] - (x_end[b, 1] - hl * R_end[b, 1, 2])
-            d2 = x_end[b - 1, 2] + hk * Rk[2, 2] - (x_end[b, 2] - hl * R_end[b, 2, 2])
-            wk0, wk1, wk2 = w_new[b - 1, 0], w_new[b - 1, 1], w_new[b - 1, 2]
-        for r in range(3):
-            for c in range(3):
-                Q[r, c] = Rk[0, r] * R_end[b, 0, c] + Rk[1, r] * R_end[b, 1, c] + Rk[2, r] * R_end[b, 2, c]
-        th0, th1, th2 = _log_so3_parts(Q)
-        e0, e1, e2 = _spring_moment(th0, th1, th2, K[s, 0] * (th0 - rest[s, 0]), K[s, 1] * (th1 - rest[s, 1]),
-                                    K[s, 2] * (th2 - rest[s, 2]))
-        c_d = damping[s]
-        m0 = Rk[0, 0] * e0 + Rk[0, 1] * e1 + Rk[0, 2] * e2 + c_d * (w_new[b, 0] - wk0)
-        m1 = Rk[1, 0] * e0 + Rk[1, 1] * e1 + Rk[1, 2] * e2 + c_d * (w_new[b, 1] - wk1)
-        m2 = Rk[2, 0] * e0 + Rk[2, 1] * e1 + Rk[2, 2] * e2 + c_d * (w_new[b, 2] - wk2)
+        d0, d1, d2, m0, m1, m2 = _joint_gap_and_moment(b, s, f, x_end, R_end, half, root_point, root_frame, K, rest,
+                                                       damping, w_new, 0, Q)
         res[jj, 0] = d0
         res[jj, 1] = d1
         res[jj, 2] = d2

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from headsim.solvers._kernels.chains import _exp_times_into, _log_so3_parts, _spring_moment
+from headsim.solvers._kernels.chains import _exp_times_into, _joint_gap_and_moment
 
 BLOCK = 12  # unknowns per body b: v' (3), ω' (3), and the impulse P_b = (p, L*) of its inner joint b (6)
 
@@ -99,29 +99,8 @@ def mean_lever_residual(s0, n, j0, z, x, R, v, w, mass, inertia, half, root_poin
             for c in range(6, 12):
                 out[b, c] = z[b, c]
             continue
-        if b == 0:
-            Rk = root_frame[f]
-            d0 = root_point[f, 0] - (x_end[b, 0] - hs * R_end[b, 0, 2])
-            d1 = root_point[f, 1] - (x_end[b, 1] - hs * R_end[b, 1, 2])
-            d2 = root_point[f, 2] - (x_end[b, 2] - hs * R_end[b, 2, 2])
-            wk0, wk1, wk2 = 0.0, 0.0, 0.0
-        else:
-            Rk = R_end[b - 1]
-            hk = half[s - 1]
-            d0 = x_end[b - 1, 0] + hk * Rk[0, 2] - (x_end[b, 0] - hs * R_end[b, 0, 2])
-            d1 = x_end[b - 1, 1] + hk * Rk[1, 2] - (x_end[b, 1] - hs * R_end[b, 1, 2])
-            d2 = x_end[b - 1, 2] + hk * Rk[2, 2] - (x_end[b, 2] - hs * R_end[b, 2, 2])
-            wk0, wk1, wk2 = z[b - 1, 3], z[b - 1, 4], z[b - 1, 5]
-        for r in range(3):
-            for c in range(3):
-                Q[r, c] = Rk[0, r] * R_end[b, 0, c] + Rk[1, r] * R_end[b, 1, c] + Rk[2, r] * R_end[b, 2, c]
-        th0, th1, th2 = _log_so3_parts(Q)
-        e0, e1, e2 = _spring_moment(th0, th1, th2, K[s, 0] * (th0 - rest[s, 0]), K[s, 1] * (th1 - rest[s, 1]),
-                                    K[s, 2] * (th2 - rest[s, 2]))
-        c_d = damping[s]
-        m0 = Rk[0, 0] * e0 + Rk[0, 1] * e1 + Rk[0, 2] * e2 + c_d * (z[b, 3] - wk0)
-        m1 = Rk[1, 0] * e0 + Rk[1, 1] * e1 + Rk[1, 2] * e2 + c_d * (z[b, 4] - wk1)
-        m2 = Rk[2, 0] * e0 + Rk[2, 1] * e1 + Rk[2, 2] * e2 + c_d * (z[b, 5] - wk2)
+        d0, d1, d2, m0, m1, m2 = _joint_gap_and_moment(b, s, f, x_end, R_end, half, root_point, root_frame, K,
+                                                       rest, damping, z, 3, Q)
         scale = mass[s] / dt
         out[b, 6] = d0 * scale
         out[b, 7] = d1 * scale
