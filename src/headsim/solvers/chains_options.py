@@ -44,8 +44,11 @@ class ChainOptions:
         the cost; an analytic one is the way to make it cheap). On the terrain subset (fibres 300–330 from t = 69 ms, no
         ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does
         not occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the
-        limit: to 731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19),
-        whether landing or a remaining spin-up is not resolved: the limit stays on with either lever choice.
+        limit: to 731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19). It
+        is a real motion resolved too coarsely, not a runaway: with smaller steps (mean levers, no limit) fibre 314
+        reaches 884 / 675 / 570 rad/s at t = 83 ms with Δt = 1 / 0.5 / 0.25 ms (the start levers at 0.25 ms: 613
+        rad/s), the total energy 8.83 / 8.90 / 8.98e-5 J (start levers at 0.25 ms: 9.00e-5 J). The limit stays on
+        with either lever choice (it is the accuracy control).
     qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s) of the per-body
         projection; ``qp_iterations`` is also the sweep cap of the coupled solve (see ``contact_tolerance``).
         Default 30 (60 before ``contact_acceleration``): with the Nesterov extrapolation 30 sweeps leave the
