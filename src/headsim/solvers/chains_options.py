@@ -38,10 +38,11 @@ class ChainOptions:
         energy in 20 ms); with ``"mean"`` the same plain steps lose energy in every step (0.344 × after 20 ms,
         3–6 Newton iterations, joint gaps ≤ 0.05 nm; the 3 mm coil at 0.5 ms: 0.107 ×, where the start levers give
         3.8 ×). Where no root is found (the 3 mm coil at 1 ms: 1 rad of bending per joint) the step control
-        (``step_halvings``) still acts. Cost: the coil's steps 0.55 → 2.5 ms; 30 fibres of the terrain drape 0.2 →
-        0.3 s per step; the reference scene (355 × 100 at rest, 5 steps) 1.58 → 3.28 s per step, the same joint gaps
-        and energies: not the default (the finite-difference Jacobian's 72 residual passes per Newton iteration are
-        the cost; an analytic one is the way to make it cheap). On the terrain subset (fibres 300–330 from t = 69 ms, no
+        (``step_halvings``) still acts. Cost: the reference scene (355 × 100 at rest, 5 steps, alternated runs) 1.42
+        → 1.60 s per step with the same joint gaps and energies (1.58 → 3.28 s before the Jacobian's factors were
+        reused across iterations: 72 residual passes per evaluation); a 50 mm coil's steps 0.63 → 2.2 ms; 30 fibres
+        of the terrain drape 0.2 → 0.3 s per step (without the reuse). Not the default yet: every measured figure
+        of the tests and notes is the start levers'. On the terrain subset (fibres 300–330 from t = 69 ms, no
         ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does
         not occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the
         limit: to 731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19). It

@@ -11,7 +11,8 @@ the end-of-step gap is exactly Δt times the joint's relative velocity at those 
 on the end velocities. Since the levers depend on the end twists, the twists u' = (v', ω') and the joint impulses P
 of a fibre are solved together: Newton on the whole residual (body momentum rows, joint gaps at the end, implicit
 springs at the end frames) with a coloured central-difference Jacobian (block-tridiagonal, 12 × 12 blocks), a
-block-Thomas solve and a backtracking line search.
+block-Thomas solve and a backtracking line search; the Jacobian's factors are reused while full steps on them more
+than halve the residual.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from numba import njit, prange
 from headsim.solvers._kernels.chains import _exp_times_into, _joint_gap_and_moment
 
 BLOCK = 12  # unknowns per body b: v' (3), ω' (3), and the impulse P_b = (p, L*) of its inner joint b (6)
+CHORD_CONTRACTION = 0.5  # a Newton step on reused Jacobian factors must shrink ‖residual‖ by this factor
 
 
 @njit(cache=True, inline="always")
@@ -141,16 +143,22 @@ def _invert_into(A, out):
 
 
 @njit(cache=True)
-def _block_tridiagonal_solve(n, Lo, Dg, Up, rhs, out):
-    """out (n, 12) ← the solution of the block-tridiagonal system (Lo[b] z_{b−1} + Dg[b] z_b + Up[b] z_{b+1} = rhs_b)
-    by block Thomas elimination (Dg and rhs are overwritten)."""
-    inv = np.empty((n, BLOCK, BLOCK))
+def _block_tridiagonal_factor(n, Lo, Dg, Up, inv, G):
+    """Block Thomas elimination of the block-tridiagonal matrix (Lo[b], Dg[b], Up[b]: the blocks of row b at
+    z_{b−1}, z_b, z_{b+1}): inv[b] the inverse of the eliminated diagonal block, G[b] = Lo[b] inv[b − 1] (Dg is
+    overwritten)."""
     _invert_into(Dg[0], inv[0])
     for b in range(1, n):
-        G = Lo[b] @ inv[b - 1]
-        Dg[b] -= G @ Up[b - 1]
-        rhs[b] -= G @ rhs[b - 1]
+        G[b] = Lo[b] @ inv[b - 1]
+        Dg[b] -= G[b] @ Up[b - 1]
         _invert_into(Dg[b], inv[b])
+
+
+@njit(cache=True)
+def _block_tridiagonal_solve(n, Up, inv, G, rhs, out):
+    """out (n, 12) ← the solution for rhs (n, 12) (overwritten) with the factors of :func:`_block_tridiagonal_factor`."""
+    for b in range(1, n):
+        rhs[b] -= G[b] @ rhs[b - 1]
     out[n - 1] = inv[n - 1] @ rhs[n - 1]
     for b in range(n - 2, -1, -1):
         out[b] = inv[b] @ (rhs[b] - Up[b] @ out[b + 1])
@@ -183,6 +191,8 @@ def solve_fibre_mean_levers(f, seg_off, anchored, x, R, v, w, mass, inertia, hal
     Dg = np.empty((n, BLOCK, BLOCK))
     Lo = np.zeros((n, BLOCK, BLOCK))
     Up = np.zeros((n, BLOCK, BLOCK))
+    inv = np.empty((n, BLOCK, BLOCK))
+    G = np.empty((n, BLOCK, BLOCK))
     step = np.empty((n, BLOCK))
     trial = np.empty((n, BLOCK))
     hz = np.empty((n, BLOCK))
@@ -201,12 +211,13 @@ def solve_fibre_mean_levers(f, seg_off, anchored, x, R, v, w, mass, inertia, hal
                         dx_extra, dth_extra, K, rest, damping, x_end, R_end, res)
     merit = _merit(res)
     it = 0
+    fresh = True  # the Jacobian is evaluated again (else its last factors are reused: a chord step)
     while True:
         if np.abs(res).max() <= limit:
             return it, True
         if it == max_iter:
             return it, False
-        for colour in range(3):  # block b reaches the rows of blocks b − 1 … b + 1
+        for colour in range(3 if fresh else 0):  # block b reaches the rows of blocks b − 1 … b + 1
             for a in range(BLOCK):
                 for b in range(colour, n, 3):
                     z[b, a] += hz[b, a]
@@ -218,17 +229,19 @@ def solve_fibre_mean_levers(f, seg_off, anchored, x, R, v, w, mass, inertia, hal
                                     gravity, dx_extra, dth_extra, K, rest, damping, x_end, R_end, rm)
                 for b in range(colour, n, 3):
                     z[b, a] += hz[b, a]
-                    inv = 0.5 / hz[b, a]
+                    scale = 0.5 / hz[b, a]
                     for r in range(BLOCK):
-                        Dg[b, r, a] = (rp[b, r] - rm[b, r]) * inv
+                        Dg[b, r, a] = (rp[b, r] - rm[b, r]) * scale
                         if b > 0:
-                            Up[b - 1, r, a] = (rp[b - 1, r] - rm[b - 1, r]) * inv
+                            Up[b - 1, r, a] = (rp[b - 1, r] - rm[b - 1, r]) * scale
                         if b + 1 < n:
-                            Lo[b + 1, r, a] = (rp[b + 1, r] - rm[b + 1, r]) * inv
+                            Lo[b + 1, r, a] = (rp[b + 1, r] - rm[b + 1, r]) * scale
+        if fresh:
+            _block_tridiagonal_factor(n, Lo, Dg, Up, inv, G)
         for b in range(n):
             for r in range(BLOCK):
                 rp[b, r] = -res[b, r]
-        _block_tridiagonal_solve(n, Lo, Dg, Up, rp, step)
+        _block_tridiagonal_solve(n, Up, inv, G, rp, step)
         t = 1.0
         for _ in range(40):  # backtracking on ‖residual‖
             for b in range(n):
@@ -240,6 +253,8 @@ def solve_fibre_mean_levers(f, seg_off, anchored, x, R, v, w, mass, inertia, hal
             if new < (1.0 - 1e-4 * t) * merit:
                 break
             t *= 0.5
+        # keep the factors while a full chord step more than halves the residual; else evaluate the Jacobian again
+        fresh = not (t == 1.0 and new < CHORD_CONTRACTION * merit)
         z[:] = trial
         res[:] = rm
         merit = new
