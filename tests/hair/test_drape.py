@@ -77,6 +77,27 @@ def test_horizontal_ribbon_splits_without_friction_and_stays_with_friction():
     assert res.obstacle_contacts[-1] > 0
 
 
+def test_cli_drape_joint_levers_option(tmp_path):
+    """``--joint-levers mean`` reaches the solver (ChainOptions.joint_levers; its physics is tested in
+    tests/solvers/test_chains_stabilisation.py): the same small plane drape with either choice writes its trajectory,
+    the two trajectories differ (the joint stage's equations differ), and an unknown choice exits with 2 and
+    writes nothing."""
+    runs = {}
+    for levers in ("start", "mean"):
+        out = tmp_path / levers
+        r = CliRunner().invoke(app, ["hair", "drape", "--scene", "plane", "--friction", "iso", "--fibres", "2",
+                                     "--segments", "30", "--duration", "0.005", "--frames", "2", "--joint-levers",
+                                     levers, "--out", str(out)])
+        assert r.exit_code == 0, r.output
+        runs[levers] = np.load(out / "trajectory.npz")["polylines"]
+    assert np.isfinite(runs["mean"]).all()
+    assert np.abs(runs["mean"][-1] - runs["start"][-1]).max() > 0.0
+    with pytest.raises(SystemExit) as e:
+        main(["hair", "drape", "--scene", "plane", "--joint-levers", "end", "--out", str(tmp_path / "bad")])
+    assert e.value.code == 2
+    assert not (tmp_path / "bad").exists()
+
+
 def test_cli_drape_writes_outputs_and_rejects_bad_input(tmp_path, capsys):
     runner = CliRunner()
     out = tmp_path / "drape"

@@ -24,6 +24,9 @@ def drape_cmd(
     frames: int = typer.Option(30, min=2, help="recorded frames"),
     contact_coupling: str = typer.Option("coupled", help="coupled (Gauss–Seidel over contacts) | per-body (seed)"),
     friction_objective: str = typer.Option("qp", help="qp (recommended) | lp (seed eq. 8.62, HiGHS)"),
+    joint_levers: str = typer.Option("start", help="start (seed eq. 8.72) | mean (joint impulses at the levers "
+                                     "averaged over the step's rotation: no energy gain on fast-turning bent fibres; "
+                                     "slower)"),
     render: bool = typer.Option(False, help="also write path-traced frames to rendered/ (slow)"),
 ) -> None:
     """Drop fibres onto an obstacle; write the trajectory (NPZ + VTK polylines), plots, frames and report.html."""
@@ -41,7 +44,7 @@ def drape_cmd(
         raise ParameterError(f"--friction must be one of {', '.join(FRICTION_MODES)}, got {friction!r}")
     sc = build_drape_scene(scene, friction, n_fibres=fibres or None, segments=segments or None, dt=dt,
                            duration=duration or None, contact_coupling=contact_coupling,
-                           friction_objective=friction_objective)
+                           friction_objective=friction_objective, joint_levers=joint_levers)
     every = max(1, sc.n_steps // (frames - 1))
     with Progress(TextColumn(f"[bold]{sc.name}[/bold] ({friction})"), BarColumn(),
                   TextColumn("{task.completed}/{task.total} steps"), TimeRemainingColumn()) as progress:
