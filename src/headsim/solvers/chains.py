@@ -533,7 +533,7 @@ class ChainSolver:
             K.correct_joints_batch(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
         else:
             K.correct_joints_serial(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
-        if o.joint_levers == "mean":  # from the start levers' twists, solved again with the mean levers
+        if o.joint_levers == "mean":  # solved again with the mean levers; the start levers' answer where that fails
             ok = np.zeros(F, np.bool_)
             large = model.n_segments >= o.parallel_threshold
             kern = KM.solve_mean_levers_batch if large else KM.solve_mean_levers_serial

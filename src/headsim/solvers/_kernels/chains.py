@@ -264,14 +264,20 @@ def _spring_moment(t0, t1, t2, e0, e1, e2):
     else:
         th = np.sqrt(th2)
         c = 1.0 / th2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
-    # a = θ × e, b = θ × a
-    a0 = t1 * e2 - t2 * e1
-    a1 = t2 * e0 - t0 * e2
-    a2 = t0 * e1 - t1 * e0
-    b0 = t1 * a2 - t2 * a1
-    b1 = t2 * a0 - t0 * a2
-    b2 = t0 * a1 - t1 * a0
-    return e0 + 0.5 * a0 + c * b0, e1 + 0.5 * a1 + c * b1, e2 + 0.5 * a2 + c * b2
+    return skew_series_times(t0, t1, t2, 0.5, c, e0, e1, e2)
+
+
+@njit(cache=True, inline="always")
+def skew_series_times(p0, p1, p2, a, b, r0, r1, r2):
+    """(E + a p̃ + b p̃²) r = r + a p × r + b p × (p × r), as three scalars (the form of the SO(3) Jacobians and
+    their inverses)."""
+    c0 = p1 * r2 - p2 * r1
+    c1 = p2 * r0 - p0 * r2
+    c2 = p0 * r1 - p1 * r0
+    d0 = p1 * c2 - p2 * c1
+    d1 = p2 * c0 - p0 * c2
+    d2 = p0 * c1 - p1 * c0
+    return r0 + a * c0 + b * d0, r1 + a * c1 + b * d1, r2 + a * c2 + b * d2
 
 
 @njit(cache=True, inline="always")

@@ -20,7 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from headsim.solvers._kernels.chains import _exp_times_into, _joint_gap_and_moment
+from headsim.solvers._kernels.chains import _exp_times_into, _joint_gap_and_moment, skew_series_times
+from headsim.solvers._kernels.rods import so3_jacobian_coefficients
 
 BLOCK = 12  # unknowns per body b: v' (3), ω' (3), and the impulse P_b = (p, L*) of its inner joint b (6)
 CHORD_CONTRACTION = 0.5  # a Newton step on reused Jacobian factors must shrink ‖residual‖ by this factor
@@ -29,21 +30,8 @@ CHORD_CONTRACTION = 0.5  # a Newton step on reused Jacobian factors must shrink 
 @njit(cache=True, inline="always")
 def _mean_lever(p0, p1, p2, r0, r1, r2):
     """J_l(φ) r = r + a φ × r + b φ × (φ × r), a = (1 − cos θ)/θ², b = (θ − sin θ)/θ³ (series below 1e-4 rad)."""
-    th2 = p0 * p0 + p1 * p1 + p2 * p2
-    if th2 < 1e-8:
-        a = 0.5 - th2 / 24.0
-        b = 1.0 / 6.0 - th2 / 120.0
-    else:
-        th = np.sqrt(th2)
-        a = (1.0 - np.cos(th)) / th2
-        b = (th - np.sin(th)) / (th2 * th)
-    c0 = p1 * r2 - p2 * r1
-    c1 = p2 * r0 - p0 * r2
-    c2 = p0 * r1 - p1 * r0
-    d0 = p1 * c2 - p2 * c1
-    d1 = p2 * c0 - p0 * c2
-    d2 = p0 * c1 - p1 * c0
-    return r0 + a * c0 + b * d0, r1 + a * c1 + b * d1, r2 + a * c2 + b * d2
+    a, b = so3_jacobian_coefficients(p0 * p0 + p1 * p1 + p2 * p2)
+    return skew_series_times(p0, p1, p2, a, b, r0, r1, r2)
 
 
 @njit(cache=True)

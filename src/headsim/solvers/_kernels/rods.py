@@ -90,17 +90,21 @@ def rodrigues(theta):
     return out
 
 
+@njit(cache=True, inline="always")
+def so3_jacobian_coefficients(t2):
+    """(a, b) of the SO(3) Jacobians J_l(θ) = E + a θ̃ + b θ̃², J_r(θ) = J_l(−θ), for t2 = |θ|²:
+    a = (1 − cos t)/t², b = (t − sin t)/t³ (their series below t = 1e-4)."""
+    if t2 < 1e-8:
+        return 0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0
+    t = np.sqrt(t2)
+    return (1.0 - np.cos(t)) / t2, (t - np.sin(t)) / (t2 * t)
+
+
 @njit(cache=True)
 def right_jacobian_into(theta, out):
     """Right Jacobian of SO(3) into out (3, 3): exp(hat(theta + d)) ~= exp(hat(theta)) exp(hat(J_r d))."""
     t2 = theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]
-    if t2 < 1e-8:
-        a = 0.5 - t2 / 24.0
-        b = 1.0 / 6.0 - t2 / 120.0
-    else:
-        t = np.sqrt(t2)
-        a = (1.0 - np.cos(t)) / t2
-        b = (t - np.sin(t)) / (t2 * t)
+    a, b = so3_jacobian_coefficients(t2)
     for i in range(3):
         for j in range(3):
             out[i, j] = b * theta[i] * theta[j]
