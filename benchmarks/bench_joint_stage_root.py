@@ -49,7 +49,7 @@ start-of-step levers while the gap they close moves with the rotated ones. With 
 was found lost energy, at every step size measured. Where no root is found (3 mm at 1 ms: 1 rad of bending per
 joint turning by ≈ 1 rad per step) neither lever choice helps; the step control does (halving).
 
-In the solver since the same session: ``ChainOptions.joint_levers = "mean"``
+In the solver since the same session, and its default since the thirty-eighth: ``ChainOptions.joint_levers = "mean"``
 (:mod:`headsim.solvers._kernels.chains_mean`, the same equations as :class:`JointStage` with the mean levers, checked
 by a test, solved the same way in Numba); its plain steps on the 5 mm coil at 1 ms give this table's mean-lever
 column (0.344 × after 20 ms). Two ways into the existing ``correct_fibre_joints`` failed first (5 mm coil at 1 ms):

@@ -121,7 +121,7 @@ def test_cli_drape_writes_outputs_and_rejects_bad_input(tmp_path, capsys):
     assert not (tmp_path / "bad").exists()
     # Δt = 1 s: the chains tear apart (a joint gap of 8 cm, more than half a 15 mm segment, even in the solver's
     # smallest sub-steps of 125 ms): reported as a failed simulation, exit 2, no output folder. (At Δt = 0.5 s the
-    # sub-steps of max_rotation_per_step keep the chain together: 1.1 mm gaps.)
+    # sub-steps of max_rotation_per_step kept the chain together with the former default start levers: 1.1 mm gaps.)
     with pytest.raises(SystemExit) as e:
         main(["hair", "drape", "--scene", "sphere-helical", "--fibres", "20", "--segments", "10", "--dt", "1",
               "--duration", "2", "--out", str(tmp_path / "torn")])

@@ -230,6 +230,51 @@ def test_mean_lever_kernel_has_the_diagnostics_equations():
             np.testing.assert_array_equal(out[0, 6:], z[0, 6:])
 
 
+def test_mean_lever_newton_from_kept_factors_reaches_the_fresh_root():
+    """``solve_mean_levers_serial`` keeps each fibre's Jacobian factors for its next call (the solver's next
+    harmonisation pass and step) and starts there with chord steps. On the moving 5 mm coil: a first solve from a
+    fresh Jacobian, then the problem changed as a later pass changes it (an extra rotation Δθ_extra of ≈ 0.05 rad
+    per body, and 1 mm/s more on every velocity) solved from the kept factors, from a fresh Jacobian, and from
+    useless factors (the identity): all three converge to the same root (twists within the joint tolerance's
+    scale: 1e-9 m of gap per Δt = 1 ms is 1e-6 m/s), and the kept factors were used (their iterates differ
+    bitwise from the fresh Jacobian's)."""
+    from headsim.solvers._kernels import chains_mean as KM
+
+    B = _joint_stage_module()
+    model, state, rng = _moving_coil(B, 13)
+    n, dt = model.n_segments, 1e-3
+    fibres = np.zeros(1, np.int64)
+    zero = np.zeros((n, 3))
+
+    def solve(v, dth, factors, kept):
+        v_out, w_out = v.copy(), state.angular_velocity.copy()
+        its, ok = np.zeros(1, np.int64), np.zeros(1, np.bool_)
+        KM.solve_mean_levers_serial(fibres, model.segment_offsets, model.anchored, state.position, state.rotation, v,
+                                    state.angular_velocity, model.mass, model.inertia, model.half_length,
+                                    model.root_point, model.root_frame, dt, np.zeros(3), zero, dth,
+                                    model.joint_stiffness, model.rest_rotation, model.joint_damping, 1e-9, 40, v_out,
+                                    w_out, its, ok, *factors, kept)
+        assert ok[0] and kept[0]
+        return v_out, w_out, int(its[0])
+
+    def fresh_factors():
+        return tuple(np.zeros((n, KM.BLOCK, KM.BLOCK)) for _ in range(3))
+
+    kept_factors = fresh_factors()
+    solve(state.velocity, zero, kept_factors, np.zeros(1, np.bool_))
+    v2 = state.velocity + 1e-3
+    dth = rng.normal(0.0, 0.05, (n, 3))
+    v_kept, w_kept, _ = solve(v2, dth, kept_factors, np.ones(1, np.bool_))
+    v_new, w_new, _ = solve(v2, dth, fresh_factors(), np.zeros(1, np.bool_))
+    identity = (np.broadcast_to(np.eye(KM.BLOCK), (n, KM.BLOCK, KM.BLOCK)).copy(),
+                np.zeros((n, KM.BLOCK, KM.BLOCK)), np.zeros((n, KM.BLOCK, KM.BLOCK)))
+    v_bad, w_bad, _ = solve(v2, dth, identity, np.ones(1, np.bool_))
+    for v, w in ((v_kept, w_kept), (v_bad, w_bad)):
+        np.testing.assert_allclose(v, v_new, rtol=0, atol=1e-5)
+        np.testing.assert_allclose(w, w_new, rtol=0, atol=1e-5 / model.half_length.min())
+    assert not np.array_equal(v_kept, v_new)
+
+
 def test_joint_stage_root_diagnostic_runs_and_its_roots_converge():
     """``benchmarks/bench_joint_stage_root.py`` (issue 10: the released coil with the solver's plain step and with
     Method I's joint stage solved to its root, with the start and with the mean levers) runs 3 steps of 1 ms: every

@@ -24,9 +24,9 @@ def drape_cmd(
     frames: int = typer.Option(30, min=2, help="recorded frames"),
     contact_coupling: str = typer.Option("coupled", help="coupled (Gauss–Seidel over contacts) | per-body (seed)"),
     friction_objective: str = typer.Option("qp", help="qp (recommended) | lp (seed eq. 8.62, HiGHS)"),
-    joint_levers: str = typer.Option("start", help="start (seed eq. 8.72) | mean (joint impulses at the levers "
-                                     "averaged over the step's rotation: no energy gain on fast-turning bent fibres; "
-                                     "slower)"),
+    joint_levers: str = typer.Option("mean", help="mean (joint impulses at the levers averaged over the step's "
+                                     "rotation: no energy gain on fast-turning bent fibres) | start (seed eq. 8.72; "
+                                     "cheaper)"),
     render: bool = typer.Option(False, help="also write path-traced frames to rendered/ (slow)"),
 ) -> None:
     """Drop fibres onto an obstacle; write the trajectory (NPZ + VTK polylines), plots, frames and report.html."""

@@ -11,7 +11,11 @@ One step (:meth:`ChainSolver.step`), "variant two" of §8.6.5.3 (joints first, t
    of a 70 µm, 3 mm segment would need Δt < 0.1 ms). The Newton matrix is the first-order
    (linearised K-matrix) Jacobian, block-tridiagonal per fibre, factorised once per step (chord
    Newton); the residual is the exact nonlinear trial integration. The orientation term f° of (8.86)
-   is dropped as in the thesis.
+   is dropped as in the thesis. That is ``ChainOptions.joint_levers="start"``; the **default** ``"mean"``
+   applies each impulse at the lever averaged over its body's rotation of the step, J_l(Δt ω') r, and solves
+   each fibre's twists and impulses together to the root (Newton,
+   :mod:`headsim.solvers._kernels.chains_mean`): the impulses then do no work on the end velocities, where the
+   start levers made the plain step gain energy on fibres turning ≈ 1 rad per step.
 2. **Contacts (Alg. 6).** Half step q^{i+½} = q^i + ½Δt u^i (θ = 1 convention of the source, rotation
    by the exponential map), u⁻ = u^i + Δt M⁻¹F (eq. 8.43; ``external_impulse="half"`` copies Alg. 6
    literally: contacting bodies then get only half the external impulse), detection at q^{i+½}
@@ -478,6 +482,7 @@ class ChainSolver:
         self._rows_buf = None  # its output rows (see _row_buffers)
         self._joint_factor_buf = None  # the joint stage's Newton factors (see _joints)
         self._mean_lever_failures = 0  # joint_levers="mean": this step's fibre joint solves that did not converge
+        self._mean_factors = {}  # joint_levers="mean": the Newton's Jacobian factors per joint stage (_mean_lever_factors)
         self._unsprung_factor_buf = None  # … of the spring-free joint stage (springs_in_first_half_step=False)
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
@@ -515,6 +520,28 @@ class ChainSolver:
         args = (model.segment_offsets, model.anchored, x, R, v, w, model.mass, model.inertia, model.half_length,
                 model.root_point, model.root_frame, float(dt), g, dx_extra, dth_extra, model.joint_stiffness,
                 model.rest_rotation, model.joint_damping, float(o.joint_tolerance), int(o.max_newton))
+        if o.joint_levers == "mean":
+            # the mean levers' Newton (chord steps on the factors of an earlier call, kept across calls and steps);
+            # the start levers' answer for the fibres where it does not converge
+            v_out[:] = v
+            w_out[:] = w
+            ok = np.zeros(F, np.bool_)
+            inv, G, Up, kept = self._mean_lever_factors(model, store)
+            margs = args[:-2] + (float(o.joint_tolerance), MEAN_LEVER_ITERATIONS, v_out, w_out, its, ok, inv, G, Up,
+                                 kept)
+            if self.fibre_loop:
+                for f in range(F):
+                    KM.solve_mean_levers_serial(np.array([f], np.int64), *margs)
+            elif model.n_segments >= o.parallel_threshold:
+                KM.solve_mean_levers_batch(np.arange(F, dtype=np.int64), *margs)
+            else:
+                KM.solve_mean_levers_serial(np.arange(F, dtype=np.int64), *margs)
+            failed = np.flatnonzero(~ok)
+            self._mean_lever_failures += failed.size
+            if failed.size:
+                fac = tuple(np.empty((model.n_segments, 6, 6)) for _ in range(3)) + (False,)
+                K.correct_joints_serial(failed.astype(np.int64), *args, v_out, w_out, *fac, its, gaps)
+            return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
         ready = factor is not None and len(factor) > 0
         if not ready:
             S = model.n_segments
@@ -533,14 +560,18 @@ class ChainSolver:
             K.correct_joints_batch(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
         else:
             K.correct_joints_serial(np.arange(F, dtype=np.int64), *args, v_out, w_out, *fac, its, gaps)
-        if o.joint_levers == "mean":  # solved again with the mean levers; the start levers' answer where that fails
-            ok = np.zeros(F, np.bool_)
-            large = model.n_segments >= o.parallel_threshold
-            kern = KM.solve_mean_levers_batch if large else KM.solve_mean_levers_serial
-            kern(np.arange(F, dtype=np.int64), *args[:-2], float(o.joint_tolerance), MEAN_LEVER_ITERATIONS, v_out,
-                 w_out, its, ok)
-            self._mean_lever_failures += int(F - ok.sum())
         return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
+
+    def _mean_lever_factors(self, model, store):
+        """(inv, G, Up (S, 12, 12), kept (F,) bool): the mean-lever Newton's Jacobian factors of ``model``'s fibres,
+        kept across calls and steps under the name ``store`` (one set per joint stage: with and without springs);
+        new ones (none kept) for another model."""
+        kept = self._mean_factors.get(store)
+        if kept is None or kept[0] is not model:
+            S, F = model.n_segments, model.n_fibres
+            kept = (model, *(np.zeros((S, KM.BLOCK, KM.BLOCK)) for _ in range(3)), np.zeros(F, np.bool_))
+            self._mean_factors[store] = kept
+        return kept[1:]
 
     # -- detection ---------------------------------------------------------------------------------
     def _detect(self, model, x, R, dt, obstacles, u_minus=None, dq0=None, old_speed=None) -> _Rows:

@@ -25,31 +25,41 @@ class ChainOptions:
     harmonisation_iterations : joints → contacts passes per step (1–3 in the seed).
     contact_sweeps : per-body projection passes (≥ 2: later passes use the partners' current velocity).
     joint_tolerance : m, Newton stop on the max joint gap of the trial state; max_newton : iterations.
-    joint_levers : ``"start"`` (default; eq. 8.72: the joint stage applies each joint impulse at the levers ±h R e₃
-        of the start of the step, its spring rows linearly implicit) or ``"mean"``: each impulse at the lever
-        averaged over its body's rotation φ of the step, J_l(φ) r (J_l the left Jacobian of SO(3)), so that the
-        end-of-step gap is exactly Δt times the joint's relative velocity at it and the impulses do no work on the
-        end velocities; the twists and impulses of every fibre are then solved together to the root of the stage's
-        equations (:mod:`headsim.solvers._kernels.chains_mean`: Newton with a coloured finite-difference Jacobian,
-        up to 40 iterations from the start-of-step twists; a fibre whose Newton does not converge keeps the start
-        levers' answer, counted in :attr:`StepStats.joint_root_failures`). Issue 10's thirty-seventh session
-        (``benchmarks/bench_joint_stage_root.py``): the start levers' impulses did the work that made the plain
-        step gain energy on strongly bent, stiff fibres turning ≈ 1 rad per step (the released coil, 8.7 × its
-        energy in 20 ms); with ``"mean"`` the same plain steps lose energy in every step (0.344 × after 20 ms,
-        3–6 Newton iterations, joint gaps ≤ 0.05 nm; the 3 mm coil at 0.5 ms: 0.107 ×, where the start levers give
-        3.8 ×). Where no root is found (the 3 mm coil at 1 ms: 1 rad of bending per joint) the step control
-        (``step_halvings``) still acts. Cost: the reference scene (355 × 100 at rest, 5 steps, alternated runs) 1.42
-        → 1.60 s per step with the same joint gaps and energies (1.58 → 3.28 s before the Jacobian's factors were
-        reused across iterations: 72 residual passes per evaluation); a 50 mm coil's steps 0.63 → 2.2 ms; 30 fibres
-        of the terrain drape 0.2 → 0.3 s per step (without the reuse). Not the default yet: every measured figure
-        of the tests and notes is the start levers'. On the terrain subset (fibres 300–330 from t = 69 ms, no
-        ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does
-        not occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the
-        limit: to 731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19). It
-        is a real motion resolved too coarsely, not a runaway: with smaller steps (mean levers, no limit) fibre 314
-        reaches 884 / 675 / 570 rad/s at t = 83 ms with Δt = 1 / 0.5 / 0.25 ms (the start levers at 0.25 ms: 613
-        rad/s), the total energy 8.83 / 8.90 / 8.98e-5 J (start levers at 0.25 ms: 9.00e-5 J). The limit stays on
-        with either lever choice (it is the accuracy control).
+    joint_levers : ``"mean"`` (default since issue 10's thirty-eighth session) or ``"start"`` (eq. 8.72, the seed's
+        Method I: the joint stage applies each joint impulse at the levers ±h R e₃ of the start of the step, its
+        spring rows linearly implicit). ``"mean"``: each impulse at the lever averaged over its body's rotation φ of
+        the step, J_l(φ) r (J_l the left Jacobian of SO(3)), so that the end-of-step gap is exactly Δt times the
+        joint's relative velocity at it and the impulses do no work on the end velocities; the twists and impulses of
+        every fibre are then solved together to the root of the stage's equations
+        (:mod:`headsim.solvers._kernels.chains_mean`: Newton with a coloured forward-difference Jacobian whose block
+        factors are kept across iterations, harmonisation passes and steps while chord steps on them more than halve
+        the residual; up to 40 iterations from the start-of-step twists; a fibre whose Newton does not converge gets
+        the start levers' answer, counted in :attr:`StepStats.joint_root_failures`). Issue 10's thirty-seventh session
+        (``benchmarks/bench_joint_stage_root.py``): the start levers' impulses did the work that made the plain step
+        gain energy on strongly bent, stiff fibres turning ≈ 1 rad per step (the released coil, 8.7 × its energy in 20
+        ms); with ``"mean"`` the same plain steps lose energy in every step (0.344 × after 20 ms, joint gaps ≤ 0.4 nm;
+        the 3 mm coil at 0.5 ms: 0.107 ×, where the start levers give 3.8 ×). Where no root is found (the 3 mm coil at
+        1 ms: 1 rad of bending per joint) the step control (``step_halvings``) still acts. The terrain drape reduced
+        to 7 × 100 (frictionless, 110 steps) never gains energy with ``"mean"`` even without the step control (the
+        start levers: up to 3.6e-4 J in a step, then a torsional runaway;
+        ``tests/solvers/test_chains_stabilisation.py``). At rest ``"mean"``'s fully implicit torsion leaves light free
+        chains spinning slowly about their axes (the 4-layer stack of 0.6 mm segments: ≈ 0.1 rad/s against ≈ 0.01
+        rad/s, nanometre overlaps that the split push-out corrects in every step, 7 of 300 steps halved by the energy
+        check, whose bound at rest is ≈ 1e-25 J; ``tests/solvers/test_chains.py``). Cost (thirty-eighth session, after
+        the factors were kept across calls and the double work of the start kernel for every fibre was removed): the 7
+        × 30 helical drape (aniso, 400 steps) 18.2–18.4 ms per step against 19.9 ms with ``"start"`` (joint stage 2.3
+        against 0.9 ms per step; before these changes 8.6 ms), the reference scene at rest
+        (``benchmarks/bench_drape.py --state benchmarks/data/drape_355x100_aniso_t1.0.npz --settle 3 --steps 5
+        --coupled-only``, alternated runs) 1.91 / 1.72 s per step against 1.85 / 1.74 s with ``"start"`` (joint stage
+        0.15–0.16 against 0.06–0.07 s; contacts, joint gaps, penetrations and energies the same to 2–3 digits).
+        Thirty-seventh session, with ``"mean"`` opt-in: on the terrain subset (fibres 300–330 from t = 69 ms, no
+        ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does not
+        occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the limit: to
+        731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19). It is a real
+        motion resolved too coarsely, not a runaway: with smaller steps (mean levers, no limit) fibre 314 reaches 884
+        / 675 / 570 rad/s at t = 83 ms with Δt = 1 / 0.5 / 0.25 ms (the start levers at 0.25 ms: 613 rad/s), the total
+        energy 8.83 / 8.90 / 8.98e-5 J (start levers at 0.25 ms: 9.00e-5 J). The limit stays on with either lever
+        choice (it is the accuracy control).
     qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s) of the per-body
         projection; ``qp_iterations`` is also the sweep cap of the coupled solve (see ``contact_tolerance``).
         Default 30 (60 before ``contact_acceleration``): with the Nesterov extrapolation 30 sweeps leave the
@@ -381,8 +391,8 @@ class ChainOptions:
         xfail lists what did not change it). Thirty-seventh session (``benchmarks/bench_joint_stage_root.py``): not
         the spring rows' linearisation either (the joint stage solved to its root gains energy too, and more often)
         but the work of the joint impulses at the start-of-step levers; at the levers averaged over each body's
-        rotation, J_l(Δt ω') r, the exact root dissipated in every step: ``joint_levers="mean"`` (not the
-        default, see there; with it this limit stays on). Refinement on the 30 fibres
+        rotation, J_l(Δt ω') r, the exact root dissipated in every step: ``joint_levers="mean"`` (the default
+        since the thirty-eighth session; with it this limit stays on). Refinement on the 30 fibres
         300–330 of the terrain state (``--fibres 300:330``, 30 steps from t = 69 ms; limit 0.5 / 0.25 / 0.1 rad):
         largest transverse spin per step 142–510 / 117–290 / 139–438 rad/s (off: up to 1,544, and 4,070 rad/s in all
         at the 12th step), joint gaps ≤ 25.9 / 6.5 / 1.1 µm, total energy after the 30 steps 8.49 / 8.59 / 8.67e-5
@@ -689,7 +699,7 @@ class ChainOptions:
     contact_sweeps: int = 2
     joint_tolerance: float = 1e-9
     max_newton: int = 8
-    joint_levers: str = "start"
+    joint_levers: str = "mean"
     qp_iterations: int = 30
     qp_tolerance: float = 1e-9
     contact_band: float = 0.5
