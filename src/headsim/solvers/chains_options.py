@@ -52,10 +52,11 @@ class ChainOptions:
         (``benchmarks/bench_drape.py --state benchmarks/data/drape_355x100_aniso_t1.0.npz --settle 3 --steps 5
         --coupled-only``, alternated runs) 1.91 / 1.72 s per step against 1.85 / 1.74 s with ``"start"`` (joint stage
         0.15–0.16 against 0.06–0.07 s; contacts, joint gaps, penetrations and energies the same to 2–3 digits).
-        Thirty-seventh session, with ``"mean"`` opt-in: on the terrain subset (fibres 300–330 from t = 69 ms, no
-        ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does not
-        occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the limit: to
-        731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19). It is a real
+        Figures in the notes and tests measured before the thirty-eighth session are the start levers' unless they say
+        otherwise. Thirty-seventh session, with ``"mean"`` opt-in: on the terrain subset (fibres 300–330 from t = 69
+        ms, no ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does
+        not occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the limit:
+        to 731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19). It is a real
         motion resolved too coarsely, not a runaway: with smaller steps (mean levers, no limit) fibre 314 reaches 884
         / 675 / 570 rad/s at t = 83 ms with Δt = 1 / 0.5 / 0.25 ms (the start levers at 0.25 ms: 613 rad/s), the total
         energy 8.83 / 8.90 / 8.98e-5 J (start levers at 0.25 ms: 9.00e-5 J). The limit stays on with either lever
