@@ -42,25 +42,29 @@ class ChainOptions:
         1 ms: 1 rad of bending per joint) the step control (``step_halvings``) still acts. The terrain drape reduced
         to 7 × 100 (frictionless, 110 steps) never gains energy with ``"mean"`` even without the step control (the
         start levers: up to 3.6e-4 J in a step, then a torsional runaway;
-        ``tests/solvers/test_chains_stabilisation.py``). At rest ``"mean"``'s fully implicit torsion leaves light free
-        chains spinning slowly about their axes (the 4-layer stack of 0.6 mm segments: ≈ 0.1 rad/s against ≈ 0.01
-        rad/s, nanometre overlaps that the split push-out corrects in every step, 7 of 300 steps halved by the energy
-        check, whose bound at rest is ≈ 1e-25 J; ``tests/solvers/test_chains.py``). Cost (thirty-eighth session, after
-        the factors were kept across calls and the double work of the start kernel for every fibre was removed): the 7
-        × 30 helical drape (aniso, 400 steps) 18.2–18.4 ms per step against 19.9 ms with ``"start"`` (joint stage 2.3
-        against 0.9 ms per step; before these changes 8.6 ms), the reference scene at rest
-        (``benchmarks/bench_drape.py --state benchmarks/data/drape_355x100_aniso_t1.0.npz --settle 3 --steps 5
-        --coupled-only``, alternated runs) 1.91 / 1.72 s per step against 1.85 / 1.74 s with ``"start"`` (joint stage
-        0.15–0.16 against 0.06–0.07 s; contacts, joint gaps, penetrations and energies the same to 2–3 digits).
-        Figures in the notes and tests measured before the thirty-eighth session are the start levers' unless they say
-        otherwise. Thirty-seventh session, with ``"mean"`` opt-in: on the terrain subset (fibres 300–330 from t = 69
-        ms, no ``max_rotation_per_step``) fibre 328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does
-        not occur (≤ 392 rad/s), but fibre 314 turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the limit:
-        to 731 rad/s, 21 solver steps for 14 steps; the start levers with the limit: ≤ 597 rad/s, 19). It is a real
-        motion resolved too coarsely, not a runaway: with smaller steps (mean levers, no limit) fibre 314 reaches 884
-        / 675 / 570 rad/s at t = 83 ms with Δt = 1 / 0.5 / 0.25 ms (the start levers at 0.25 ms: 613 rad/s), the total
-        energy 8.83 / 8.90 / 8.98e-5 J (start levers at 0.25 ms: 9.00e-5 J). The limit stays on with either lever
-        choice (it is the accuracy control).
+        ``tests/solvers/test_chains_stabilisation.py``). At rest the two agree (the 4-layer stack of free 5-segment
+        chains: the same total energy to 12 digits after 20 steps, spin ≤ 5e-5 rad/s). They differ where the first
+        pass's contact solve is stopped after one sweep (``predictor_sweeps`` = 1): its crude friction correction
+        spins the light chains about their axes by up to 9 rad/s, the second pass's joint stage starts from that
+        rotation Δθ_extra, and the mean levers follow it (the start levers do not): ≈ 0.1–0.2 rad/s of spin left
+        against ≈ 0.01 rad/s, nanometre overlaps that the split push-out corrects in every step, 7 of 300 steps halved
+        by the energy check (its bound at rest is ≈ 1e-25 J); with one harmonisation pass both give the same 0.4 rad/s
+        (``tests/solvers/test_chains.py``). Cost (thirty-eighth session, after the factors were kept across calls and
+        the double work of the start kernel for every fibre was removed): the 7 × 30 helical drape (aniso, 400 steps)
+        18.2–18.4 ms per step against 19.9 ms with ``"start"`` (joint stage 2.3 against 0.9 ms per step; before these
+        changes 8.6 ms), the reference scene at rest (``benchmarks/bench_drape.py --state
+        benchmarks/data/drape_355x100_aniso_t1.0.npz --settle 3 --steps 5 --coupled-only``, alternated runs) 1.91 /
+        1.72 s per step against 1.85 / 1.74 s with ``"start"`` (joint stage 0.15–0.16 against 0.06–0.07 s; contacts,
+        joint gaps, penetrations and energies the same to 2–3 digits). Figures in the notes and tests measured before
+        the thirty-eighth session are the start levers' unless they say otherwise. Thirty-seventh session, with
+        ``"mean"`` opt-in: on the terrain subset (fibres 300–330 from t = 69 ms, no ``max_rotation_per_step``) fibre
+        328's spin-up of the start levers (464 → 4,070 rad/s in 12 steps) does not occur (≤ 392 rad/s), but fibre 314
+        turns ever faster, 441 → 883 rad/s over t = 75–83 ms (with the limit: to 731 rad/s, 21 solver steps for 14
+        steps; the start levers with the limit: ≤ 597 rad/s, 19). It is a real motion resolved too coarsely, not a
+        runaway: with smaller steps (mean levers, no limit) fibre 314 reaches 884 / 675 / 570 rad/s at t = 83 ms with
+        Δt = 1 / 0.5 / 0.25 ms (the start levers at 0.25 ms: 613 rad/s), the total energy 8.83 / 8.90 / 8.98e-5 J
+        (start levers at 0.25 ms: 9.00e-5 J). The limit stays on with either lever choice (it is the accuracy
+        control).
     qp_iterations, qp_tolerance : PGS / friction sweep limit and velocity tolerance (m/s) of the per-body
         projection; ``qp_iterations`` is also the sweep cap of the coupled solve (see ``contact_tolerance``).
         Default 30 (60 before ``contact_acceleration``): with the Nesterov extrapolation 30 sweeps leave the
