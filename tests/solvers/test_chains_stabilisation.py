@@ -311,18 +311,21 @@ def _rodrigues(phi):
 
 
 
-def _released_coil(radius=5e-3, stats=None, **options):
+def _released_coil(radius=5e-3, stats=None, copies=1, **options):
     """A root-anchored fibre of 30 segments of 3 mm (70 µm) with a straight rest shape, wound into a helix of
     5 mm radius and 5 mm pitch (0.6 rad of bending at every joint) and released at rest, without gravity or
     contacts: its stiff joint springs (Δt² K / I ≈ 136 at Δt = 1 ms) unwind it. Returns the total energies
-    (kinetic + springs, J) at the start and after each of 20 steps of 1 ms, and the solver steps taken."""
+    (kinetic + springs, J) at the start and after each of 20 steps of 1 ms, and the solver steps taken.
+    ``copies``: that many coils side by side (2 cm apart, not touching), as the fibres of one model."""
     from headsim.solvers.chains_model import kinetic_energy, spring_energy
 
     n, seg, pitch = 30, 3e-3, 5e-3
     c = np.hypot(radius, pitch / (2 * np.pi))
     t = np.arange(n + 1) * seg / c
     nodes = np.stack([radius * np.cos(t), radius * np.sin(t), pitch / (2 * np.pi) * t], 1)
-    model, state = chain_model_from_polylines(nodes, [0, n + 1], radius=R_FIBRE, rest_shape="straight")
+    nodes = np.concatenate([nodes + [0.02 * c, 0.0, 0.0] for c in range(copies)])
+    model, state = chain_model_from_polylines(nodes, np.arange(copies + 1) * (n + 1), radius=R_FIBRE,
+                                              rest_shape="straight")
     solver = ChainSolver(ChainOptions(gravity=(0.0, 0.0, 0.0), fibre_contacts=False, **options))
     energies, substeps = [kinetic_energy(model, state) + spring_energy(model, state)], 0
     for _ in range(20):
@@ -362,6 +365,19 @@ def test_the_plain_step_dissipates_a_released_coil():
     assert e[-1] < 0.9 * e[0]
     assert sum(st.joint_root_failures for st in stats) == 0
     assert max(st.max_joint_gap for st in stats) <= 1e-9
+
+
+def test_fibres_whose_mean_lever_newton_fails_get_the_start_levers_answer():
+    """``joint_levers="mean"``: a fibre whose Newton does not converge keeps the start levers' answer (Method I)
+    and is counted in ``StepStats.joint_root_failures``. Two coils of 3 mm radius (1 rad of bending per joint)
+    in plain steps of 1 ms, where no mean-lever root is found (measured: every solve fails): the energies are
+    those of the start levers' run to round-off, and every fibre's solve of each harmonisation pass is counted
+    (2 fibres × 2 passes × 20 steps)."""
+    stats = []
+    e_mean, _ = _released_coil(3e-3, stats=stats, copies=2, step_halvings=0)
+    e_start, _ = _released_coil(3e-3, copies=2, step_halvings=0, joint_levers="start")
+    np.testing.assert_allclose(e_mean, e_start, rtol=1e-12)
+    assert sum(st.joint_root_failures for st in stats) == 2 * 2 * 20
 
 
 @pytest.mark.xfail(strict=True, reason="open (issue 10): with the seed's start-of-step levers (joint_levers='start', "

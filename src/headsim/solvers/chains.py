@@ -540,7 +540,8 @@ class ChainSolver:
             self._mean_lever_failures += failed.size
             if failed.size:
                 fac = tuple(np.empty((model.n_segments, 6, 6)) for _ in range(3)) + (False,)
-                K.correct_joints_serial(failed.astype(np.int64), *args, v_out, w_out, *fac, its, gaps)
+                fallback = K.correct_joints_batch if failed.size > 1 and not self.fibre_loop else K.correct_joints_serial
+                fallback(failed.astype(np.int64), *args, v_out, w_out, *fac, its, gaps)
             return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
         ready = factor is not None and len(factor) > 0
         if not ready:
