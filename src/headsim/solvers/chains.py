@@ -482,7 +482,7 @@ class ChainSolver:
         self._rows_buf = None  # its output rows (see _row_buffers)
         self._joint_factor_buf = None  # the joint stage's Newton factors (see _joints)
         self._mean_lever_failures = 0  # joint_levers="mean": this step's fibre joint solves that did not converge
-        self._mean_factors = {}  # joint_levers="mean": the Newton's Jacobian factors per joint stage (_mean_lever_factors)
+        self._mean_factors = {}  # joint_levers="mean": Newton's Jacobian factors per joint stage (_mean_lever_factors)
         self._unsprung_factor_buf = None  # … of the spring-free joint stage (springs_in_first_half_step=False)
         self._pass_setup = None  # (rows, pass, joint rows, mass, inertia, kernel set-up, body domains) of this pass
         self._unsprung = None  # (model, the model without joint springs and damping): first half step
@@ -509,7 +509,9 @@ class ChainSolver:
         the chains' factorised Newton matrices for the given ``model`` and R, filled by the first call that gets
         it empty (the harmonisation passes of one step share it: the matrix depends on R of t_i only).
         ``store``: the attribute whose arrays (kept across steps, :meth:`_kept_arrays`) the factors go to;
-        None: fresh arrays."""
+        None: fresh arrays. With ``joint_levers="mean"`` ``factor`` is not used and ``store`` names the mean-lever
+        Newton's kept factors (:meth:`_mean_lever_factors`); the start levers' kernel runs only for the fibres whose
+        Newton fails."""
         o = self.options
         F = model.n_fibres
         v_out = np.empty_like(v)
