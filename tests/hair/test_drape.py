@@ -111,9 +111,11 @@ def test_cli_drape_writes_outputs_and_rejects_bad_input(tmp_path, capsys):
     assert np.isfinite(data["polylines"]).all()
     # per step: the solver steps it took (≥ 1) and the pairs turned back (≥ 0), one entry per 1 ms step
     assert data["substeps"].shape == data["crossings_restored"].shape == data["step_time"].shape == (10,)
-    assert data["end_overlap"].shape == (10,)
+    assert data["end_overlap"].shape == data["joint_root_failures"].shape == (10,)
     assert (data["substeps"] >= 1).all() and (data["crossings_restored"] >= 0).all()
+    assert (data["joint_root_failures"] >= 0).all()
     assert "steps taken in halves" in r.output and "fibre pairs turned back" in r.output
+    assert f"{int(data['joint_root_failures'].sum())} fibre joint solves on the start levers" in r.output
     assert "overlap of a contact row at a step's end" in r.output
     with pytest.raises(SystemExit) as e:
         main(["hair", "drape", "--scene", "moon", "--out", str(tmp_path / "bad")])

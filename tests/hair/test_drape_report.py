@@ -66,6 +66,7 @@ def test_report_numbers_and_offline_rendering(run, tmp_path):
     ext, vol = bounding_box(res.polylines[-1])
     assert f"= {vol * 1e6:.1f} cm³" in html and scene.description in html
     assert "steps taken in halves" in html and "at the end of a step (exact" in html and "fibre pairs turned back after passing through each other" in html
+    assert f"the mean-lever Newton did not converge)</th><td>{int(res.joint_root_failures.sum())} in the run" in html
     rendered, img = render_page(page, tmp_path)
     assert "WebGL is not supported" not in rendered
     assert "gl-container" in rendered and rendered.count("main-svg") >= 2

@@ -71,7 +71,9 @@ def drape_cmd(
                f"max penetration {res.max_penetration.max() * 1e6:.1f} µm (first order, mid-step), largest "
                f"overlap of a contact row at a step's end {end_overlap * 1e6:.1f} µm, max joint gap "
                f"{res.max_joint_gap.max() * 1e6:.2f} µm, {int((res.substeps > 1).sum())} steps taken in halves, "
-               f"{int(res.crossings_restored.sum())} fibre pairs turned back; wrote {len(files)} files to {out}")
+               f"{int(res.crossings_restored.sum())} fibre pairs turned back, "
+               f"{int(res.joint_root_failures.sum())} fibre joint solves on the start levers (mean-lever Newton not "
+               f"converged); wrote {len(files)} files to {out}")
 
 
 def register(app: typer.Typer) -> None:

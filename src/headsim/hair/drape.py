@@ -185,6 +185,9 @@ class DrapeResult:
     crossings_restored: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     # (steps,) m, the largest overlap of a step's contact rows at its end, exact (StepStats.end_overlap; nan: none)
     end_overlap: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # (steps,) fibre joint solves of the step whose mean-lever Newton did not converge and that took the start
+    # levers' answer instead (StepStats.joint_root_failures; ChainOptions.joint_levers="mean")
+    joint_root_failures: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
 
 def _hex_lattice(n: int, spacing: float) -> np.ndarray:
@@ -578,7 +581,7 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
     times, frames = [0.0], [polylines_from_state(scene.model, state)]
     cols = {k: [] for k in ("step_time", "kinetic", "total_energy", "contacts", "fibre_contacts", "obstacle_contacts",
                             "max_joint_gap", "max_penetration", "newton_iterations", "qp_sweeps", "qp_capped",
-                            "step_seconds", "substeps", "crossings_restored", "end_overlap")}
+                            "step_seconds", "substeps", "crossings_restored", "end_overlap", "joint_root_failures")}
     secs: dict[str, float] = {}
     for i in range(steps):
         state = solver.step(scene.model, state, scene.dt, scene.obstacles)
@@ -597,7 +600,8 @@ def run_drape(scene: DrapeScene, *, n_steps: int | None = None, record_every: in
         cols["total_energy"].append(st.total_energy)
         cols["step_seconds"].append(st.seconds.get("total", 0.0))
         for k in ("contacts", "fibre_contacts", "obstacle_contacts", "max_joint_gap", "max_penetration",
-                  "newton_iterations", "qp_sweeps", "qp_capped", "substeps", "crossings_restored", "end_overlap"):
+                  "newton_iterations", "qp_sweeps", "qp_capped", "substeps", "crossings_restored", "end_overlap",
+                  "joint_root_failures"):
             cols[k].append(getattr(st, k))
         for k, v in st.seconds.items():
             secs[k] = secs.get(k, 0.0) + v
@@ -629,7 +633,7 @@ def write_drape(scene: DrapeScene, result: DrapeResult, folder: Path, *, render:
                         newton_iterations=result.newton_iterations, qp_sweeps=result.qp_sweeps,
                         qp_capped=result.qp_capped, step_seconds=result.step_seconds, substeps=result.substeps,
                         crossings_restored=result.crossings_restored, end_overlap=result.end_overlap,
-                        radius=scene.model.radius[0], dt=scene.dt)
+                        joint_root_failures=result.joint_root_failures, radius=scene.model.radius[0], dt=scene.dt)
     files.append(npz)
     (folder / "vtk").mkdir()
     F, nn = result.polylines.shape[1:3]

@@ -49,6 +49,9 @@ def drape_numbers(scene: DrapeScene, result: DrapeResult) -> list[tuple[str, str
     if len(result.crossings_restored):
         rows.append(("fibre pairs turned back after passing through each other",
                      f"{int(result.crossings_restored.sum())} in the run"))
+    if len(result.joint_root_failures):
+        rows.append(("fibre joint solves on the start levers (the mean-lever Newton did not converge)",
+                     f"{int(result.joint_root_failures.sum())} in the run"))
     return rows
 
 
