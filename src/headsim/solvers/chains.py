@@ -529,21 +529,21 @@ class ChainSolver:
             w_out[:] = w
             ok = np.zeros(F, np.bool_)
             inv, G, Up, kept = self._mean_lever_factors(model, store)
-            margs = args[:-2] + (float(o.joint_tolerance), MEAN_LEVER_ITERATIONS, v_out, w_out, its, ok, inv, G, Up,
-                                 kept)
+            # args[:-1]: the joint tolerance kept, the start levers' iteration cap replaced
+            margs = args[:-1] + (MEAN_LEVER_ITERATIONS, v_out, w_out, its, ok, inv, G, Up, kept)
+            large = model.n_segments >= o.parallel_threshold and not self.fibre_loop
             if self.fibre_loop:
                 for f in range(F):
                     KM.solve_mean_levers_serial(np.array([f], np.int64), *margs)
-            elif model.n_segments >= o.parallel_threshold:
-                KM.solve_mean_levers_batch(np.arange(F, dtype=np.int64), *margs)
             else:
-                KM.solve_mean_levers_serial(np.arange(F, dtype=np.int64), *margs)
+                (KM.solve_mean_levers_batch if large else KM.solve_mean_levers_serial)(np.arange(F, dtype=np.int64),
+                                                                                        *margs)
             failed = np.flatnonzero(~ok)
             self._mean_lever_failures += failed.size
             if failed.size:
                 fac = tuple(np.empty((model.n_segments, 6, 6)) for _ in range(3)) + (False,)
-                fallback = K.correct_joints_batch if failed.size > 1 and not self.fibre_loop else K.correct_joints_serial
-                fallback(failed.astype(np.int64), *args, v_out, w_out, *fac, its, gaps)
+                (K.correct_joints_batch if large else K.correct_joints_serial)(failed.astype(np.int64), *args, v_out,
+                                                                               w_out, *fac, its, gaps)
             return v_out, w_out, int(its.max(initial=0)), float(gaps.max(initial=0.0))
         ready = factor is not None and len(factor) > 0
         if not ready:
