@@ -1079,7 +1079,8 @@ class ChainSolver:
         k, sg0, cn1 = self._crossing_flips(model, start, cb_, cp_, x, d3)
         # a flipped pair that is a row itself was turned back with the rows
         k = np.asarray(k, np.int64)
-        k = k[~np.isin(key[k], np.minimum(body, partner) * S + np.maximum(body, partner))]
+        if len(k):  # (np.isin hashes all the rows' keys even for no k: 20 ms on the reference scene)
+            k = k[~np.isin(key[k], np.minimum(body, partner) * S + np.maximum(body, partner))]
         if not len(k):
             return _no_rows(), 0
         fb, fp = np.ascontiguousarray(cb_[k]), np.ascontiguousarray(cp_[k])
@@ -1191,7 +1192,7 @@ class ChainSolver:
                            int(o.qp_iterations), float(o.contact_tolerance), np.zeros(k), np.zeros((k, 2)), jk, jl,
                            jrk, jrl, np.ascontiguousarray(jt), jc, jw0, _chain_offsets(jk, jl), -1, par,
                            momentum=self._momentum, root_sweeps=int(o.root_sweeps), root_segments=int(o.root_segments),
-                           joints_last=True)
+                           joints_last=True, storage=self._kernel_storage(model, k + len(jk)))
         # (an unbounded correction scaled down: _trusted_correction)
         du = np.ascontiguousarray(_trusted_correction(model, np.zeros_like(du), du, R, dt,
                                                       float(np.max(-(gap + POST_SLOP_FRACTION * r)))))

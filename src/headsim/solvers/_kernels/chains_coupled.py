@@ -1043,9 +1043,11 @@ coupled_iterate, coupled_iterate_parallel = serial_and_parallel(_coupled_iterate
 def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                     restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
                     joint_compliance_inv, joint_w0, chain_off, n_listed_rows=-1, parallel=False, body_part=None,
-                    momentum=0.0, root_sweeps=0, root_segments=0, late_speed=0.0, joints_last=False):
+                    momentum=0.0, root_sweeps=0, root_segments=0, late_speed=0.0, joints_last=False,
+                    storage=np.float64):
     """Set-up and iteration in one call (see :func:`_coupled_iterate_impl` for the arguments and the
     result); ``parallel``: the ``prange`` versions; ``body_part``: the body domains of the contact sweep;
+    ``storage``: floating-point type of the set-up's stored row and chain arrays (``ChainOptions.kernel_precision``);
     ``joints_last``: end with an exact joint solve of every chain;
     ``momentum``: Nesterov extrapolation (0: plain Gauss–Seidel); ``root_sweeps``, ``root_segments``: the
     root region's extra sweeps (0: none); ``late_speed``: the bound deficit (m/s) above which a promotion at
@@ -1055,7 +1057,7 @@ def project_coupled(body, partner, normal, lever, partner_lever, target, u, mass
     setup = coupled_setup_parallel if parallel else coupled_setup
     iterate = coupled_iterate_parallel if parallel else coupled_iterate
     pre = setup(body, partner, normal, lever, partner_lever, mass, R, inertia, joint_k, joint_l, joint_rk, joint_rl,
-                joint_compliance_inv, chain_off, n_listed_rows, np.zeros(0))
+                joint_compliance_inv, chain_off, n_listed_rows, np.zeros(0, storage))
     return iterate(*pre, body, partner, normal, lever, partner_lever, target, u, mass, R, inertia, mu_cos, mu_sin,
                    restitution, max_iter, tol, lam_out, fr_out, joint_k, joint_l, joint_rk, joint_rl, joint_target,
                    joint_compliance_inv, joint_w0, chain_off, n_listed_rows, bool(joints_last), body_part,
