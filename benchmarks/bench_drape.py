@@ -619,6 +619,21 @@ forward differences, keeps each fibre's Jacobian factors across calls and steps,
 only for fibres where it fails. This command, alternated: 1.91 / 1.72 s per step against 1.85 / 1.74 s with ``--set
 joint_levers='"start"'`` (joint stage 0.15–0.16 against 0.06–0.07 s; 17.2 k against 17.3 k active contacts, max
 joint gap 0.160 against 0.162 µm, max penetration 115 against 117 µm). Goal 0.2 s: not met.
+
+Thirty-ninth session. Where a resting step goes now (t = 1.005 s, wrappers around the calls): the three contact solves
+≈ 0.8–0.9 s (20 + 30 + 30 sweeps of ≈ 9.5 ms over ≈ 207 k rows and candidates and the chains of 355 fibres), the
+post-stabilisation 0.37–0.38 s (its projection 0.20 s: 30 sweeps over ≈ 43 k rows of 352 fibres, > 90 % of its
+≈ 1,000 deep rows on segments 0–3, the pinched root bundle; two evaluations of the end rows 0.17 s), detection 0.13 s,
+joints 0.11 s. Changed: the post-stabilisation's projection stores its arrays in float32 like the contact solves
+(``kernel_precision``) and the joint-neighbour crossing check skips ``np.isin`` where no pair flipped (it hashed all
+row keys, 20 ms per call): post-stabilisation 0.29 s. This command alternated with the session's start tree (b13ad32,
+a worktree): 1.63 / 1.38 against 1.82 / 1.79 s per step, the same overlaps. Measured, not kept: the last pass's
+velocity solve captured at t = 1.003 s and replayed with other caps, against 400 sweeps (whose last full sweep still
+changes an impulse by 0.012 m/s): the point-speed error away from segments 0–4 is p99 1.22e-2 / 1.03e-2 / 6.8e-3 /
+4.1e-3 m/s after 10 / 30 / 60 / 100 sweeps (median 9.9e-4 / 6.4e-4 / 4.0e-4 / 2.5e-4; median point speed 5.3e-2 m/s,
+the anisotropic strand still slides at t = 1 s); the Gauss–Seidel stagnates, so fewer sweeps lose little per step,
+but ``--set qp_iterations=10`` ran 1.40 s per step (extensions to 20 sweeps) with 642 overlaps > 10 µm next to the
+roots against 295. Goal 0.2 s: not met.
 """
 
 from __future__ import annotations
