@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from headsim.cli import app, main
 from headsim.errors import ParameterError
 from headsim.hair.drape import bounding_box, build_drape_scene, friction_law, run_drape
+from headsim.hair.drape_checks import ribbon_measures
 from headsim.hair.properties import friction
 from headsim.solvers.chains import ChainSolver
 
@@ -32,11 +33,11 @@ def test_friction_modes_come_from_the_property_database():
 
 def _ribbon(mode):
     """The reduced §8.6.1 ribbon after 0.32 s: 6 fibres × 40 segments × 30 cm (the seed's segment length
-    7.5 mm and fibre length), recorded every 0.08 s."""
+    7.5 mm and fibre length), recorded every 0.08 s, and its measures (headsim.hair.drape_checks)."""
     sc = build_drape_scene("sphere-horizontal", mode, n_fibres=6, segments=40, duration=0.32)
     res = run_drape(sc, record_every=80)
     assert np.isfinite(res.polylines).all()
-    return sc, res
+    return sc, res, ribbon_measures(sc, res)
 
 
 def test_horizontal_ribbon_splits_without_friction_and_stays_with_friction():
@@ -53,27 +54,20 @@ def test_horizontal_ribbon_splits_without_friction_and_stays_with_friction():
       its top) and ending more than 10 ribbon widths apart;
     * μ = 0.47: the middle nodes stay in contact with the top of the sphere (within 2 radii of the
       iso-level) and, after fanning out by ≈ 0.6 mm on landing, no longer move sideways: less than one
-      fibre diameter over the last 0.08 s."""
+      fibre diameter over the last 0.08 s.
+    The full-size ribbon (500 fibres) is ``benchmarks/bench_drape_ribbon.py``: there the outer fibres, 19 mm
+    from the midline on this sphere, drift beyond the friction angle on landing and slide off."""
     r = 35e-6
-    sc, res = _ribbon("none")
-    z = res.polylines[:, :, 20, 2]  # (frames, fibres) middle node, m
-    z0 = z[0]
-    width = z0.max() - z0.min()
-    assert (np.sign(z[-1]) == np.sign(z0)).all() and (z0 < 0).any() and (z0 > 0).any()
-    out = np.abs(z[:, [0, -1]]).mean(1)  # outermost fibres' distance from the midline per frame
+    sc, res, m = _ribbon("none")
+    assert m.sides_kept()
+    out = m.outermost_distance()  # outermost fibres' distance from the midline per frame
     steps = np.diff(out[1:])
     assert (steps > 0).all() and (np.diff(steps) > 0).all()
-    assert z[-1].max() - z[-1].min() > 10 * width
-    sc, res = _ribbon("iso")
-    mid = res.polylines[:, :, 20]
-    # the two segments at the middle: their axes touch the sphere between the nodes (a 7.5 mm chord of a
-    # 6 cm sphere lifts its ends by 117 µm), so the closest of 41 axis samples measures the contact
-    t = np.linspace(0.0, 1.0, 41)[:, None]
-    axis = np.concatenate([res.polylines[-1, :, k, None] * (1 - t)[None] + res.polylines[-1, :, k + 1, None] * t[None]
-                           for k in (19, 20)], axis=1)  # (fibres, 82, 3)
-    phi = sc.obstacles[0].field.distance(axis.reshape(-1, 3)).reshape(axis.shape[:2]).min(1)
-    assert (np.abs(phi - r) < 2 * r).all()
-    assert np.abs(mid[-1, :, 2] - mid[-2, :, 2]).max() < 2 * r
+    width, last = m.spread()
+    assert last > 10 * width
+    sc, res, m = _ribbon("iso")
+    assert (np.abs(m.contact_gap) < 2 * r).all()
+    assert m.sideways(0.08).max() < 2 * r
     assert res.obstacle_contacts[-1] > 0
 
 
@@ -130,6 +124,30 @@ def test_cli_drape_writes_outputs_and_rejects_bad_input(tmp_path, capsys):
     assert e.value.code == 2
     assert "tore apart" in capsys.readouterr().err
     assert not (tmp_path / "torn").exists()
+
+
+def test_ribbon_sphere_radius_is_the_users_and_checked(tmp_path, capsys):
+    """``sphere_radius`` (sphere-horizontal only; the seed does not state its sphere): the obstacle is a sphere of
+    that radius whose top stays 2 mm + r under the ribbon; impossible values and other scenes are refused, by
+    build_drape_scene and by ``headsim hair drape --sphere-radius`` (exit 2, no output folder)."""
+    from headsim.hair.drape import RIBBON_SPHERE_RADIUS
+
+    for radius, expected in ((None, RIBBON_SPHERE_RADIUS), (0.08, 0.08)):
+        sc = build_drape_scene("sphere-horizontal", "iso", n_fibres=2, segments=4, sphere_radius=radius)
+        field = sc.obstacles[0].field
+        assert field.radius == expected and tuple(field.center) == (0.0, -expected, 0.0)
+        assert abs(float(field.distance(np.zeros((1, 3)))[0])) < 1e-15  # the sphere's top at the origin
+        np.testing.assert_allclose(sc.state.position[:, 1], 0.002 + 35e-6)  # the flat ribbon 2 mm + r above it
+    for bad in (0.0, -0.05, float("nan"), float("inf")):
+        with pytest.raises(ParameterError, match="sphere_radius"):
+            build_drape_scene("sphere-horizontal", "iso", n_fibres=2, segments=4, sphere_radius=bad)
+    with pytest.raises(ParameterError, match="sphere-horizontal scene only"):
+        build_drape_scene("plane", "iso", n_fibres=1, segments=30, sphere_radius=0.08)
+    with pytest.raises(SystemExit) as e:
+        main(["hair", "drape", "--scene", "plane", "--sphere-radius", "0.08", "--out", str(tmp_path / "bad")])
+    assert e.value.code == 2
+    assert "sphere-horizontal scene only" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_head_scene_hairs_start_combed_down_and_back_at_a_shallow_angle():

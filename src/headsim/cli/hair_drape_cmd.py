@@ -27,6 +27,8 @@ def drape_cmd(
     joint_levers: str = typer.Option("mean", help="mean (joint impulses at the levers averaged over the step's "
                                      "rotation: no energy gain on fast-turning bent fibres) | start (seed eq. 8.72; "
                                      "cheaper)"),
+    sphere_radius: float = typer.Option(0.0, min=0.0, help="sphere-horizontal only: the sphere's radius, m (0: the "
+                                        "scene's 6 cm; the seed does not state it)"),
     render: bool = typer.Option(False, help="also write path-traced frames to rendered/ (slow)"),
 ) -> None:
     """Drop fibres onto an obstacle; write the trajectory (NPZ + VTK polylines), plots, frames and report.html."""
@@ -44,7 +46,8 @@ def drape_cmd(
         raise ParameterError(f"--friction must be one of {', '.join(FRICTION_MODES)}, got {friction!r}")
     sc = build_drape_scene(scene, friction, n_fibres=fibres or None, segments=segments or None, dt=dt,
                            duration=duration or None, contact_coupling=contact_coupling,
-                           friction_objective=friction_objective, joint_levers=joint_levers)
+                           friction_objective=friction_objective, joint_levers=joint_levers,
+                           sphere_radius=sphere_radius or None)
     every = max(1, sc.n_steps // (frames - 1))
     with Progress(TextColumn(f"[bold]{sc.name}[/bold] ({friction})"), BarColumn(),
                   TextColumn("{task.completed}/{task.total} steps"), TimeRemainingColumn()) as progress:

@@ -4,7 +4,11 @@ Scenes (digest §2; sizes the seed does not state — sphere radius, heights, he
 and listed in every scene's ``description``):
 
 * ``sphere-horizontal`` (§8.6.1): a flat, one-side-fixed ribbon of horizontal fibres (seed: 500 × 40
-  segments, 30 cm) falling onto a sphere centred under its midline.
+  segments, 30 cm; ours 2.2 r apart, 2 mm above a sphere of :data:`RIBBON_SPHERE_RADIUS` = 6 cm,
+  ``sphere_radius``) falling onto a sphere centred under its midline. At full size with μ = 0.47 the fibres that
+  start more than ≈ 14 mm from the midline drift past the friction angle while they slide lengthwise on landing
+  and slide off the 6 cm sphere, where the seed's stay (on an 8 cm sphere they stay):
+  ``benchmarks/bench_drape_ribbon.py``.
 * ``sphere-helical`` (§8.6.2, the reference scene): a vertical, initially helical strand (seed:
   355 × 100 segments, 30 cm, Δt = 1 ms) falling onto a sphere below, with the root height, sphere
   radius and helix derived from the seed's Table 8.1 box (:class:`HelicalSphereGeometry`: a 4.24 cm
@@ -59,6 +63,8 @@ FIBRE_DIAMETER = 70e-6  # m, Sobottka §8.6 ("durchgängig ein Querschnitt von 7
 # m, lattice spacing of the helical strands: 1.5 d leaves 35 µm (one radius) between neighbouring fibres,
 # 1.49 d at the chords of 3 mm segments (measured); the seed gives no packing
 RINGLET_SPACING = 1.5 * FIBRE_DIAMETER
+# m, radius of the sphere under the sphere-horizontal ribbon (§8.6.1; the seed does not state it)
+RIBBON_SPHERE_RADIUS = 0.06
 
 
 #: Sobottka 2008 Table 8.1 (§8.6.5.2): axis-aligned bounding box of the reference scene at t ≈ 0.7 s,
@@ -413,7 +419,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
                       segments: int | None = None, length: float = 0.30, dt: float = 1e-3,
                       duration: float | None = None, seed: int = 0, fibre_spacing: float | None = None,
                       rest_shape: str = "straight", geometry: HelicalSphereGeometry | None = None,
-                      **option_overrides) -> DrapeScene:
+                      sphere_radius: float | None = None, **option_overrides) -> DrapeScene:
     """One of :data:`SCENES` at the seed's size (or ``n_fibres`` × ``segments`` when given).
 
     fibre_spacing : lattice spacing of the helical strands (sphere-helical, terrain, plane), m;
@@ -422,11 +428,18 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
     seed : random seed of the head scene's scalp roots (the other scenes are deterministic).
     geometry : sphere-helical only; default :meth:`HelicalSphereGeometry.derive` (the derivation from
         the seed's Table 8.1 box is in :class:`HelicalSphereGeometry`).
+    sphere_radius : sphere-horizontal only, m; default :data:`RIBBON_SPHERE_RADIUS` (the seed does not state its
+        sphere; see ``benchmarks/bench_drape_ribbon.py`` for what the full-size ribbon does on which sphere).
     Other keywords go to :class:`~headsim.solvers.chains.ChainOptions`."""
     if name not in SCENES:
         raise ParameterError(f"unknown drape scene {name!r}; choose one of {', '.join(SCENES)}")
     if not (dt > 0 and length > 0):
         raise ParameterError("dt and length must be > 0")
+    if sphere_radius is not None:
+        if name != "sphere-horizontal":
+            raise ParameterError(f"sphere_radius applies to the sphere-horizontal scene only, not {name!r}")
+        if not (np.isfinite(sphere_radius) and sphere_radius > 0):
+            raise ParameterError(f"sphere_radius must be a finite length > 0 m, got {sphere_radius}")
     spacing = RINGLET_SPACING if fibre_spacing is None else float(fibre_spacing)
     if not spacing > FIBRE_DIAMETER:
         raise ParameterError(f"fibre_spacing must exceed the fibre diameter {FIBRE_DIAMETER * 1e6:g} µm "
@@ -437,7 +450,7 @@ def build_drape_scene(name: str, friction_mode: str = "aniso", *, n_fibres: int 
     anchored = True
     if name == "sphere-horizontal":
         F, n = n_fibres or 500, segments or 40
-        R = 0.06
+        R = RIBBON_SPHERE_RADIUS if sphere_radius is None else float(sphere_radius)
         spacing = 2.2 * r
         zs = (np.arange(F) - (F - 1) / 2) * spacing
         x = np.linspace(-0.5 * length, 0.5 * length, n + 1)
