@@ -61,7 +61,8 @@ SIDEWAYS_WINDOW = 0.08  # s, the rest test's window (the reduced ribbon of the t
 
 
 def run(mode, args):
-    """Run the ribbon with friction ``mode``; returns (scene, result, wall s per step)."""
+    """Run the ribbon with friction ``mode`` (its time per step and largest penetration printed); returns (scene,
+    result)."""
     from headsim.hair.drape import build_drape_scene, run_drape
 
     sc = build_drape_scene("sphere-horizontal", mode, n_fibres=args.fibres, segments=args.segments,
